@@ -1,0 +1,148 @@
+"""The differentiable design map: geometry parameters -> design control nets (P, 5, 5, 2).
+
+Parameters are a dict of arrays, holding only what the scene models:
+  radii       (n_porous_cells, 16)   pore radii, 4 per side, corner radius shared by neighbouring sides
+  corners     (n_movable_nodes, 2)   offsets of the interior grid nodes, inside +-corner_box
+  pore_radii  (4 M,)                 radii of the central pore on its M-gon of ring nodes
+  colours     (P, 5, 5)              colour net per patch (logits; the field is sigmoid of the spline)
+Patch order: porous cells (4 patches each, sides bottom, right, top, left), central pore, solid cells.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .bspline import DESIGN_CTRL
+from .scene import EMPTY, POROUS, SOLID, PatchSceneSpec, SceneSpec, bilinear_net
+
+_T = np.linspace(0.0, 1.0, DESIGN_CTRL)  # design net parameters along a side / radially
+
+
+def pore_nets(polygon: jnp.ndarray, radii: jnp.ndarray) -> jnp.ndarray:
+    """Nets (M, 5, 5, 2) of the M patches around a pore on a polygon of M nodes (counter-clockwise).
+
+    Side i's outer edge runs straight from node i to node i+1; its inner edge is
+    centroid + r * (outer - centroid); rows between are linear.  Index [side, along, radial]:
+    radial row 0 is the outer edge, so (along, radial) is positively oriented."""
+    m = polygon.shape[0]
+    k = DESIGN_CTRL - 1
+    nxt = jnp.roll(polygon, -1, axis=0)
+    outer = polygon[:, None, :] + _T[None, :, None] * (nxt - polygon)[:, None, :]  # (M, 5, 2)
+    r = radii.reshape(m, k)
+    r_side = jnp.concatenate([r, jnp.roll(r[:, :1], -1, axis=0)], axis=1)  # (M, 5): shared corner radius
+    centroid = polygon.mean(axis=0)
+    inner = centroid + r_side[..., None] * (outer - centroid)
+    return outer[:, :, None, :] + _T[None, None, :, None] * (inner - outer)[:, :, None, :]
+
+
+def _bilinear(quad: jnp.ndarray) -> jnp.ndarray:
+    s = jnp.asarray(_T)
+    S, T = jnp.meshgrid(s, s, indexing="ij")
+    w = jnp.stack([(1 - S) * (1 - T), S * (1 - T), S * T, (1 - S) * T], axis=-1)  # (5, 5, 4)
+    return jnp.einsum("ijc,cd->ijd", w, quad)
+
+
+@dataclass(frozen=True, eq=False)
+class GridDesign:
+    """Static description of a cell-grid design; `nets(params)` is the differentiable map."""
+    spec: SceneSpec
+    nodes: np.ndarray          # (N, 2) initial grid nodes, index i + (nx + 1) * j
+    movable: np.ndarray        # (n_movable,) node indices that corner offsets move
+    porous: np.ndarray         # (n_porous, 4) node indices, counter-clockwise from bottom-left
+    solid: np.ndarray          # (n_solid, 4)
+    central: np.ndarray        # (M,) ring node indices of the central pore (may be empty)
+
+    @classmethod
+    def from_spec(cls, spec: SceneSpec) -> "GridDesign":
+        nx, ny = spec.shape
+        X, Y = np.meshgrid(spec.x_breaks, spec.y_breaks, indexing="xy")
+        nodes = np.stack([X.ravel(), Y.ravel()], axis=1)
+        nid = lambda i, j: i + (nx + 1) * j
+        cell_nodes = lambda i, j: [nid(i, j), nid(i + 1, j), nid(i + 1, j + 1), nid(i, j + 1)]
+        porous = [cell_nodes(i, j) for j in range(ny) for i in range(nx) if spec.token(i, j) == POROUS]
+        solid = [cell_nodes(i, j) for j in range(ny) for i in range(nx) if spec.token(i, j) == SOLID]
+        central = [nid(i, j) for i, j in spec.central_pore]
+        used = set(np.ravel(porous).tolist()) | set(np.ravel(solid).tolist()) | set(central)
+        movable = []
+        if spec.corner_box > 0:
+            locked = {nid(i, j) for i, j in spec.locked_nodes}
+            # nodes of solid cells stay put too, so every cell keeps its bilinear/conforming shape
+            locked |= set(np.ravel(solid).tolist())
+            movable = [nid(i, j) for j in range(1, ny) for i in range(1, nx)
+                       if nid(i, j) in used and nid(i, j) not in locked]
+        as_int = lambda a, w: np.asarray(a, dtype=np.int64).reshape(-1, w)
+        return cls(spec, nodes, np.asarray(movable, dtype=np.int64), as_int(porous, 4), as_int(solid, 4),
+                   np.asarray(central, dtype=np.int64))
+
+    @property
+    def n_patches(self) -> int:
+        return 4 * len(self.porous) + len(self.central) + len(self.solid)
+
+    def init_params(self) -> dict[str, jnp.ndarray]:
+        s = self.spec
+        p = {"radii": jnp.full((len(self.porous), 4 * (DESIGN_CTRL - 1)), s.radii_init)}
+        if len(self.movable):
+            p["corners"] = jnp.zeros((len(self.movable), 2))
+        if len(self.central):
+            p["pore_radii"] = jnp.full((len(self.central) * (DESIGN_CTRL - 1),), s.central_radii_init)
+        if s.colours:
+            p["colours"] = jnp.zeros((self.n_patches, DESIGN_CTRL, DESIGN_CTRL))
+        return p
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        """Box of every geometry parameter (projection target after each optimiser update)."""
+        lo, hi = self.spec.radii_bounds
+        b = {"radii": (lo, hi), "corners": (-self.spec.corner_box, self.spec.corner_box),
+             "pore_radii": (lo, hi), "colours": (-np.inf, np.inf)}
+        return {k: b[k] for k in self.init_params()}
+
+    def node_positions(self, params) -> jnp.ndarray:
+        nodes = jnp.asarray(self.nodes)
+        if len(self.movable):
+            nodes = nodes.at[self.movable].add(params["corners"])
+        return nodes
+
+    def nets(self, params) -> jnp.ndarray:
+        nodes = self.node_positions(params)
+        parts = []
+        if len(self.porous):
+            cells = jax.vmap(pore_nets)(nodes[self.porous], params["radii"])
+            parts.append(cells.reshape(-1, DESIGN_CTRL, DESIGN_CTRL, 2))
+        if len(self.central):
+            parts.append(pore_nets(nodes[self.central], params["pore_radii"]))
+        if len(self.solid):
+            parts.append(jax.vmap(_bilinear)(nodes[self.solid]))
+        return jnp.concatenate(parts, axis=0)
+
+
+@dataclass(frozen=True, eq=False)
+class FixedDesign:
+    """A geometry with no design parameters (a general multi-patch scene such as Cook's membrane)."""
+    spec: PatchSceneSpec
+
+    @property
+    def n_patches(self) -> int:
+        return self.spec.nets.shape[0]
+
+    def init_params(self) -> dict[str, jnp.ndarray]:
+        return {}
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        return {}
+
+    def nets(self, params) -> jnp.ndarray:
+        return jnp.asarray(self.spec.nets)
+
+
+def make_design(spec) -> GridDesign | FixedDesign:
+    return GridDesign.from_spec(spec) if isinstance(spec, SceneSpec) else FixedDesign(spec)
+
+
+def initial_nets(design) -> np.ndarray:
+    return np.asarray(design.nets(design.init_params()))
+
+
+__all__ = ["GridDesign", "FixedDesign", "make_design", "pore_nets", "initial_nets", "bilinear_net", "EMPTY"]

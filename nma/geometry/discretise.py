@@ -1,0 +1,195 @@
+"""Build a scene once: analysis patches, merged control points, Dirichlet groups, free DOFs.
+
+The result is static numpy data (topology, quadrature tables) plus one differentiable function,
+`reference_points(params)`, from design parameters to the merged reference control points.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .bspline import DESIGN_CTRL, basis_matrix, element_tables, gauss_legendre_01, refinement_operator
+from .design import initial_nets, make_design
+from .scene import PatchSceneSpec, SceneSpec
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
+    ctrl_per_patch: int = 5
+    quad_points: int = 5
+
+    def __post_init__(self):
+        refinement_operator(self.ctrl_per_patch)  # validates 3k + 2
+        if not 1 <= self.quad_points <= 10:
+            raise ValueError(f"fidelity.quad_points must be in [1, 10], got {self.quad_points}")
+
+
+@dataclass(frozen=True, eq=False)
+class Discretisation:
+    spec: SceneSpec | PatchSceneSpec
+    design: object
+    fidelity: Fidelity
+    n_points: int
+    patch_points: np.ndarray      # (P, m*m) merged point index of every analysis control point
+    representative: np.ndarray    # (n_points,) a flat (patch * m*m + local) index for each point
+    elem_points: np.ndarray       # (P, S2, 9) point index of each element function
+    basis_values: np.ndarray      # (S2, Q, 9)  same tables for every patch
+    basis_grads: np.ndarray       # (S2, Q, 9, 2) parametric derivatives
+    quad_weights: np.ndarray      # (S2, Q)
+    dirichlet_dofs: np.ndarray    # (nD,) flat dof index point * 2 + component
+    actuation_matrix: np.ndarray  # (nD, n_actuations): u_D = A @ d
+    free_dofs: np.ndarray         # (nf,)
+    external_force: np.ndarray    # (2 n_points,) dead load at full load factor
+    tracked: dict = field(default_factory=dict)  # name -> point index
+    group_points: dict = field(default_factory=dict)  # group name -> point indices
+
+    @property
+    def n_patches(self) -> int:
+        return self.patch_points.shape[0]
+
+    @property
+    def n_dofs(self) -> int:
+        return len(self.free_dofs)
+
+    @property
+    def n_actuations(self) -> int:
+        return self.actuation_matrix.shape[1]
+
+    @property
+    def n_elements(self) -> int:
+        return self.elem_points.shape[0] * self.elem_points.shape[1]
+
+    def analysis_nets(self, params) -> jnp.ndarray:
+        """(P, m, m, 2) analysis control nets: the design nets refined by knot insertion (exact)."""
+        R = jnp.asarray(refinement_operator(self.fidelity.ctrl_per_patch))
+        return jnp.einsum("ia,pabd,jb->pijd", R, self.design.nets(params), R)
+
+    def reference_points(self, params) -> jnp.ndarray:
+        """(n_points, 2) merged reference control points; differentiable in the design parameters."""
+        return self.analysis_nets(params).reshape(-1, 2)[self.representative]
+
+    def init_params(self):
+        return self.design.init_params()
+
+
+def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
+    a, b = np.asarray(seg[0], float), np.asarray(seg[1], float)
+    ab = b - a
+    t = np.clip((pts - a) @ ab / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(pts - (a + t[:, None] * ab), axis=1) < tol
+
+
+def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float):
+    """Consistent nodal forces of a dead traction on every patch edge lying on `seg`."""
+    t = np.linspace(0.0, 1.0, n_ctrl)
+    spans = n_ctrl - 2
+    gx, gw = gauss_legendre_01(quad)
+    s = ((np.arange(spans)[:, None] + gx[None, :]) / spans).ravel()
+    w = np.tile(gw, spans) / spans
+    N, dN = basis_matrix(s, n_ctrl), basis_matrix(s, n_ctrl, 1)
+    forces = []
+    for p, net in enumerate(nets):
+        edges = {"xi0": (net[0, :], (p, np.s_[0, :])), "xi1": (net[-1, :], (p, np.s_[-1, :])),
+                 "eta0": (net[:, 0], (p, np.s_[:, 0])), "eta1": (net[:, -1], (p, np.s_[:, -1]))}
+        for pts, (pp, sl) in edges.values():
+            if _on_segment(pts, seg, tol).all():
+                jac = np.linalg.norm(dN @ pts, axis=1)
+                f = (N * (w * jac)[:, None]).sum(0)[:, None] * np.asarray(traction)[None, :]
+                idx = np.arange(n_ctrl * n_ctrl).reshape(n_ctrl, n_ctrl)[sl]
+                forces.append((pp, idx, f))
+    del t
+    return forces
+
+
+def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()) -> Discretisation:
+    design = make_design(spec)
+    m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
+    R = refinement_operator(m)
+    nets = np.einsum("ia,pabd,jb->pijd", R, initial_nets(design), R)  # (P, m, m, 2)
+    P = nets.shape[0]
+    flat = nets.reshape(-1, 2)
+    size = np.ptp(flat, axis=0).max()
+    tol = 1e-7 * size
+    # merge coincident control points (C0 interfaces) by connected components of near pairs
+    pairs = np.array(sorted(cKDTree(flat).query_pairs(tol)), dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(flat), len(flat)))
+    n_points, labels = connected_components(graph, directed=False)
+    # relabel in order of first appearance so point numbering follows patch order
+    first = np.full(n_points, len(flat))
+    np.minimum.at(first, labels, np.arange(len(flat)))
+    order = np.argsort(first)
+    relabel = np.empty(n_points, dtype=np.int64)
+    relabel[order] = np.arange(n_points)
+    point_of = relabel[labels]
+    representative = first[order]
+    points = flat[representative]
+    patch_points = point_of.reshape(P, m * m)
+
+    local, values, grads, weights = element_tables(m, quad)
+    elem_points = patch_points[:, local]  # (P, S2, 9)
+
+    # Dirichlet groups, pinned / clamped points
+    n_act = spec.n_actuations
+    rows: dict[int, np.ndarray] = {}
+    group_points = {}
+    for g in spec.groups:
+        idx = np.flatnonzero(_on_segment(points, g.segment, tol))
+        if len(idx) == 0:
+            raise ValueError(f"scene {spec.name}: group {g.name} segment {g.segment} holds no control point")
+        group_points[g.name] = idx
+        for pnt in idx:
+            for comp in range(2):
+                dof = 2 * pnt + comp
+                if dof in rows:
+                    raise ValueError(f"scene {spec.name}: point {points[pnt]} belongs to two groups")
+                row = np.zeros(n_act)
+                row[g.actuation] = g.direction[comp]
+                rows[dof] = row
+    fixed = []
+    if isinstance(spec, SceneSpec):
+        tree = cKDTree(points)
+        for pin in spec.pinned:
+            dist, pnt = tree.query(pin)
+            if dist > tol:
+                raise ValueError(f"scene {spec.name}: pinned point {pin} is not a control point")
+            fixed.append(pnt)
+    else:
+        for seg in spec.clamped:
+            fixed.extend(np.flatnonzero(_on_segment(points, seg, tol)).tolist())
+    for pnt in fixed:
+        for comp in range(2):
+            rows[2 * pnt + comp] = np.zeros(n_act)  # pinned wins over a group it touches
+    dirichlet = np.array(sorted(rows), dtype=np.int64)
+    A = np.array([rows[d] for d in dirichlet]).reshape(len(dirichlet), n_act)
+    free = np.setdiff1d(np.arange(2 * n_points), dirichlet)
+
+    f_ext = np.zeros(2 * n_points)
+    for tr in getattr(spec, "tractions", ()):
+        for p, idx, f in _edge_traction(nets, tr.segment, tr.traction, m, quad, tol):
+            pts = patch_points[p][idx.ravel()]
+            np.add.at(f_ext, 2 * pts, f[:, 0])
+            np.add.at(f_ext, 2 * pts + 1, f[:, 1])
+
+    tracked = {}
+    tree = cKDTree(points)
+    for name, xy in spec.tracked.items():
+        dist, pnt = tree.query(xy)
+        if dist > tol:
+            raise ValueError(f"scene {spec.name}: tracked point {name} at {xy} is not a control point "
+                             f"(nearest is {points[pnt]})")
+        tracked[name] = int(pnt)
+
+    return Discretisation(
+        spec=spec, design=design, fidelity=fidelity, n_points=n_points, patch_points=patch_points,
+        representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
+        quad_weights=weights, dirichlet_dofs=dirichlet, actuation_matrix=A, free_dofs=free,
+        external_force=f_ext, tracked=tracked, group_points=group_points)
+
+
+__all__ = ["Fidelity", "Discretisation", "discretise", "DESIGN_CTRL"]

@@ -1,0 +1,50 @@
+"""Nearly incompressible Neo-Hookean material in 2D (the paper's energy, no thickness factor).
+
+W(F) = mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2,  mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
+The material is an array [E, nu] so that it is a differentiable input like any other.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def check_material(E: float, nu: float) -> None:
+    if not np.isfinite(E) or E <= 0:
+        raise ValueError(f"material.E must be > 0, got {E}")
+    if not -1.0 < nu < 0.5:
+        raise ValueError(f"material.nu must be in (-1, 0.5), got {nu}")
+
+
+def material(E: float, nu: float) -> jnp.ndarray:
+    check_material(float(E), float(nu))
+    return jnp.array([E, nu], dtype=jnp.float64)
+
+
+def from_lame(mu: float, kappa: float) -> jnp.ndarray:
+    """[E, nu] for a given shear modulus mu and (paper-formula) bulk modulus kappa."""
+    E = 9.0 * kappa * mu / (3.0 * kappa + mu)
+    nu = (3.0 * kappa - 2.0 * mu) / (2.0 * (3.0 * kappa + mu))
+    return material(E, nu)
+
+
+def lame(mat: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    E, nu = mat[0], mat[1]
+    return E / (2.0 * (1.0 + nu)), E / (3.0 * (1.0 - 2.0 * nu))
+
+
+def det2(F: jnp.ndarray) -> jnp.ndarray:
+    return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
+
+
+def neo_hookean(F: jnp.ndarray, mu, kappa) -> jnp.ndarray:
+    """Energy density of one 2x2 deformation gradient. Defined for J > 0 only: callers keep J > 0."""
+    J = det2(F)
+    logJ = jnp.log(J)
+    return 0.5 * mu * (jnp.sum(F * F) - 2.0 - 2.0 * logJ) + 0.5 * kappa * logJ ** 2
+
+
+# first Piola stress and the 4th-order tangent dP/dF, per point
+piola = jax.grad(neo_hookean)
+tangent = jax.hessian(neo_hookean)

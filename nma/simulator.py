@@ -1,0 +1,92 @@
+"""The simulator facade: a scene, built once, with its solver; what tasks and commands call.
+
+    sim = Simulator.from_config(scene_cfg, fidelity=..., solver=...)
+    X = sim.reference_points(params)          # differentiable design map
+    u, info = sim.equilibrium(X, d, mat)      # differentiable equilibrium (jit/grad friendly)
+    sol = sim.solve(params, d, mat)           # eager: raises SolverError unless converged
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .geometry.discretise import Discretisation, Fidelity, discretise
+from .geometry.scene import scene_from_config
+from .mechanics.energy import quadrature, strain_energy
+from .solver.implicit import make_equilibrium
+from .solver.linear import make_backend
+from .solver.newton import Equations, NewtonInfo, NewtonOptions, check_converged
+
+
+@dataclass
+class Solution:
+    X: np.ndarray            # (n_points, 2) reference control points
+    u: np.ndarray            # (n_points, 2) displacement of every control point
+    info: NewtonInfo
+    energy: float            # integral of W over the reference domain
+    seconds: float
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.X + self.u
+
+
+class Simulator:
+    def __init__(self, disc: Discretisation, linear: str = "pardiso", options: NewtonOptions = NewtonOptions()):
+        self.disc = disc
+        self.options = options
+        self.backend = make_backend(linear, disc)
+        self.equations = Equations(disc)
+        self.equilibrium = make_equilibrium(self.equations, self.backend, options)
+        self._solve = jax.jit(self._solve_impl)
+
+    @classmethod
+    def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
+                    solver: Mapping[str, Any] | None = None) -> "Simulator":
+        solver = dict(solver or {})
+        disc = discretise(scene_from_config(scene), Fidelity(**dict(fidelity or {})))
+        return cls(disc, solver.pop("linear", "pardiso"), NewtonOptions.from_config(solver))
+
+    @property
+    def n_actuations(self) -> int:
+        return self.disc.n_actuations
+
+    def init_params(self):
+        return self.disc.init_params()
+
+    def reference_points(self, params) -> jnp.ndarray:
+        return self.disc.reference_points(params)
+
+    def check_actuation(self, d) -> jnp.ndarray:
+        d = jnp.atleast_1d(jnp.asarray(d, dtype=jnp.float64))
+        if d.shape != (self.n_actuations,):
+            raise ValueError(f"actuation must have {self.n_actuations} entries for scene "
+                             f"{self.disc.spec.name}, got shape {tuple(d.shape)}")
+        if not np.all(np.isfinite(np.asarray(d))):
+            raise ValueError("actuation must be finite")
+        return d
+
+    def _solve_impl(self, params, d, mat):
+        X = self.reference_points(params)
+        u, info = self.equilibrium(X, d, mat)
+        energy = strain_energy(self.disc, quadrature(self.disc, X), u, mat)
+        return X, u, info, energy
+
+    def solve(self, params, d, mat) -> Solution:
+        """Eager forward solve; raises SolverError (with how far it got) unless converged."""
+        d = self.check_actuation(d)
+        t0 = time.perf_counter()
+        X, u, info, energy = jax.block_until_ready(self._solve(params, d, mat))
+        seconds = time.perf_counter() - t0
+        check_converged(info, f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ")
+        return Solution(np.asarray(X), np.asarray(u), jax.tree_util.tree_map(np.asarray, info),
+                        float(energy), seconds)
+
+    def tracked(self, X, u) -> dict[str, jnp.ndarray]:
+        """Deformed positions of the scene's tracked points."""
+        return {k: X[i] + u[i] for k, i in self.disc.tracked.items()}

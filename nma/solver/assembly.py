@@ -1,0 +1,66 @@
+"""Sparsity of the free-free Hessian, computed once per scene, and element-to-CSR assembly."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..geometry.discretise import Discretisation
+
+
+def element_dofs(disc: Discretisation) -> np.ndarray:
+    """(E, 18) global dof index of each element tangent row, ordered (a, i) -> 2 a + i."""
+    pts = disc.elem_points.reshape(-1, 9)
+    return (2 * pts[:, :, None] + np.arange(2)).reshape(-1, 18)
+
+
+@dataclass(frozen=True, eq=False)
+class SparsePattern:
+    """CSR pattern of K_ff (upper triangle only if `upper`), and where each element entry lands."""
+    n: int
+    upper: bool
+    indptr: np.ndarray
+    indices: np.ndarray
+    scatter: np.ndarray   # (E * 324,) CSR data slot of each element entry; nnz for dropped entries
+    diag: np.ndarray      # (n,) data slot of each diagonal entry
+
+    @property
+    def nnz(self) -> int:
+        return len(self.indices)
+
+    def matrix(self, kel: np.ndarray, shift: float = 0.0) -> sp.csr_matrix:
+        data = np.bincount(self.scatter, weights=kel.reshape(-1), minlength=self.nnz + 1)[:self.nnz]
+        if shift:
+            data[self.diag] += shift
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+
+def free_index(disc: Discretisation) -> np.ndarray:
+    idx = np.full(2 * disc.n_points, -1, dtype=np.int64)
+    idx[disc.free_dofs] = np.arange(disc.n_dofs)
+    return idx
+
+
+def element_entries(disc: Discretisation) -> tuple[np.ndarray, np.ndarray]:
+    """Free row and column of every element tangent entry (-1 where a Dirichlet dof is involved)."""
+    fdof = free_index(disc)[element_dofs(disc)]                   # (E, 18)
+    rows = np.broadcast_to(fdof[:, :, None], fdof.shape + (18,)).reshape(-1)
+    cols = np.broadcast_to(fdof[:, None, :], fdof.shape[:1] + (18, 18)).reshape(-1)
+    return rows, cols
+
+
+def sparse_pattern(disc: Discretisation, upper: bool) -> SparsePattern:
+    n = disc.n_dofs
+    rows, cols = element_entries(disc)
+    keep = (rows >= 0) & (cols >= 0)
+    if upper:
+        keep &= rows <= cols
+    keys = rows[keep] * n + cols[keep]
+    unique = np.unique(keys)
+    scatter = np.full(rows.shape, len(unique), dtype=np.int64)
+    scatter[keep] = np.searchsorted(unique, keys)
+    r, c = unique // n, unique % n
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
+    diag = np.searchsorted(unique, np.arange(n) * n + np.arange(n))
+    return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag)

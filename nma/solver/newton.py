@@ -1,0 +1,262 @@
+"""Static equilibrium by Newton's method with adaptive incremental loading, as one jitted loop.
+
+Each iteration assembles the force and element tangents at the current state and does one of:
+  predictor  (start of a load step): solve K_ff du = -(g + K_fD dU_D - dlam f_ext), the consistent
+             linearised response to the next load increment, and move the load as far as the
+             exact J > 0 step bound allows (the increment is cut to what keeps every point valid);
+  corrector  (at fixed load): Newton step with backtracking Armijo line search on the energy, the
+             step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step).
+A load step fails when its line search cannot decrease the energy or it takes too many iterations;
+then the state returns to the last converged load and the increment is halved.  Increments grow
+after each converged step.  Non-descent directions (an indefinite Hessian) are retried with a
+diagonal shift.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of
+the linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry.discretise import Discretisation
+from ..mechanics.energy import force_and_tangents, max_step, quadrature, strain_energy
+from .assembly import element_dofs
+
+RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT = 0, 1, 2, 3
+STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
+               INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
+               ITERATION_LIMIT: "the iteration limit solver.max_iters was reached"}
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    rtol: float = 1e-10           # residual tolerance relative to the full-load force scale
+    atol: float = 1e-13           # noise floor relative to (max element stiffness x structure size)
+    max_iters: int = 200
+    max_step_iters: int = 25      # corrector iterations before a load step counts as failed
+    initial_increment: float = 1.0
+    min_increment: float = 1e-4
+    grow: float = 2.0
+    step_fraction: float = 0.9    # a step may go this fraction of the way to J = 0
+    armijo: float = 1e-4
+    max_backtracks: int = 40
+
+    def __post_init__(self):
+        checks = {"rtol": (0, 1), "atol": (0, 1), "initial_increment": (0, 1), "min_increment": (0, 1),
+                  "step_fraction": (0, 1), "armijo": (0, 0.5)}
+        for name, (lo, hi) in checks.items():
+            v = getattr(self, name)
+            if not lo < v <= hi:
+                raise ValueError(f"solver.{name} must be in ({lo}, {hi}], got {v}")
+        for name in ("max_iters", "max_step_iters", "max_backtracks"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"solver.{name} must be >= 1, got {getattr(self, name)}")
+        if self.grow < 1:
+            raise ValueError(f"solver.grow must be >= 1, got {self.grow}")
+
+    @classmethod
+    def from_config(cls, cfg) -> "NewtonOptions":
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in dict(cfg).items() if k in names})
+
+
+class NewtonInfo(NamedTuple):
+    status: jnp.ndarray
+    iterations: jnp.ndarray
+    load_steps: jnp.ndarray
+    cuts: jnp.ndarray
+    load: jnp.ndarray             # load factor of the last converged state
+    residual: jnp.ndarray         # ||g_f|| at the last iterate
+    tolerance: jnp.ndarray
+    residual_history: jnp.ndarray  # (max_iters,), nan past the last iteration
+
+
+class _State(NamedTuple):
+    u: jnp.ndarray
+    lam: jnp.ndarray
+    u_conv: jnp.ndarray
+    lam_conv: jnp.ndarray
+    dlam: jnp.ndarray
+    predictor: jnp.ndarray
+    shift: jnp.ndarray
+    it: jnp.ndarray
+    step_it: jnp.ndarray
+    steps: jnp.ndarray
+    cuts: jnp.ndarray
+    status: jnp.ndarray
+    tol: jnp.ndarray
+    k_ref: jnp.ndarray
+    rnorm: jnp.ndarray
+    history: jnp.ndarray
+
+
+class Equations:
+    """The discrete equilibrium equations of one scene: everything Newton and the adjoint need."""
+
+    def __init__(self, disc: Discretisation):
+        self.disc = disc
+        self.free = jnp.asarray(disc.free_dofs)
+        self.dirichlet = jnp.asarray(disc.dirichlet_dofs)
+        self.A = jnp.asarray(disc.actuation_matrix)
+        self.f_ext = jnp.asarray(disc.external_force)
+        self.edofs = jnp.asarray(element_dofs(disc))
+
+    def full(self, u_free, lam, u_D):
+        u = jnp.zeros(2 * self.disc.n_points, u_free.dtype)
+        return u.at[self.free].set(u_free).at[self.dirichlet].set(lam * u_D).reshape(-1, 2)
+
+    def potential(self, quad, u_free, lam, u_D, mat):
+        u = self.full(u_free, lam, u_D)
+        return strain_energy(self.disc, quad, u, mat) - lam * jnp.dot(self.f_ext, u.reshape(-1))
+
+    def residual(self, quad, u_free, lam, u_D, mat):
+        return jax.grad(self.potential, argnums=1)(quad, u_free, lam, u_D, mat)
+
+    def linearise(self, quad, u_free, lam, u_D, mat):
+        """Free residual g_f and element tangents at a state."""
+        force, kel = force_and_tangents(self.disc, quad, self.full(u_free, lam, u_D), mat)
+        return force.reshape(-1)[self.free] - lam * self.f_ext[self.free], kel
+
+    def coupling(self, kel, u_D):
+        """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
+        v = jnp.zeros(2 * self.disc.n_points, kel.dtype).at[self.dirichlet].set(u_D)
+        fe = jnp.einsum("eab,eb->ea", kel, v[self.edofs])
+        return jnp.zeros_like(v).at[self.edofs].add(fe)[self.free]
+
+
+def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
+    """Solve for the free displacements at full load. Returns (u_free, NewtonInfo). Traceable."""
+    disc = eqs.disc
+    quad = quadrature(disc, X)
+    u_D = eqs.A @ d
+    f_free = eqs.f_ext[eqs.free]
+    size = jnp.max(jnp.ptp(X, axis=0))
+    nf = disc.n_dofs
+    dtype = X.dtype
+
+    def energy(u, lam):
+        return eqs.potential(quad, u, lam, u_D, mat)
+
+    def bound(u, lam, du, dlam):
+        du_full = eqs.full(du, dlam, u_D)
+        a = max_step(disc, quad, eqs.full(u, lam, u_D), du_full)
+        return jnp.where(jnp.isnan(a), 0.0, a)
+
+    def line_search(u, lam, du, slope, alpha0):
+        E0 = energy(u, lam)
+        slack = 1e-12 * jnp.abs(E0) + 1e-300
+
+        def ok(a, Ea):
+            return Ea <= E0 + opts.armijo * a * slope + slack
+
+        def cond(c):
+            a, Ea, k = c
+            return (~ok(a, Ea)) & (k < opts.max_backtracks)
+
+        def body(c):
+            a, _, k = c
+            a = 0.5 * a
+            return a, energy(u + a * du, lam), k + 1
+
+        a, Ea, _ = jax.lax.while_loop(cond, body, (alpha0, energy(u + alpha0 * du, lam), 0))
+        return a, ok(a, Ea) & (alpha0 > 0)
+
+    def body(s: _State) -> _State:
+        g, kel = eqs.linearise(quad, s.u, s.lam, u_D, mat)
+        rnorm = jnp.linalg.norm(g)
+        first = s.it == 0
+        kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
+        k_ref = jnp.where(first, kdiag, s.k_ref)
+        f_ref = jnp.linalg.norm(eqs.coupling(kel, u_D) - f_free) + jnp.linalg.norm(f_free)
+        tol = jnp.where(first, opts.rtol * f_ref + opts.atol * kdiag * size, s.tol)
+
+        # a corrector that meets the tolerance closes its load step
+        step_done = (~s.predictor) & (rnorm <= tol)
+        finished = step_done & (s.lam >= 1.0)
+        lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
+        u_conv = jnp.where(step_done, s.u, s.u_conv)
+        dlam = jnp.where(step_done, jnp.minimum(s.dlam * opts.grow, 1.0 - s.lam), s.dlam)
+        predictor = s.predictor | step_done
+        steps = s.steps + step_done
+        status = jnp.where(finished, CONVERGED, s.status)
+
+        def advance(_):
+            rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * u_D) - dlam * f_free), -g)
+            du = backend.solve(kel, rhs, s.shift)
+            finite = jnp.all(jnp.isfinite(du))
+            du = jnp.where(finite, du, jnp.zeros_like(du))
+
+            def predict(_):
+                # move load and free dofs together, as far as J > 0 allows
+                a = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, dlam))
+                return a, finite & (a * dlam >= opts.min_increment), jnp.asarray(True)
+
+            def correct(_):
+                # bounded line search on the energy at fixed load
+                slope = jnp.dot(g, du)
+                descent = finite & (slope < 0)
+                a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, 0.0))
+                a, ok = line_search(s.u, s.lam, du, slope, a0)
+                return a, descent & ok, descent
+
+            a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
+            step_it = jnp.where(predictor, 0, s.step_it + 1)
+            # a failed load step returns to the last converged state with half the increment;
+            # a non-descent direction is retried with a larger diagonal shift first
+            cut = (descent & ~ok) | (step_it >= opts.max_step_iters)
+            moved = ok & ~cut
+            u_new = jnp.where(moved, s.u + a * du, jnp.where(cut, u_conv, s.u))
+            lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, lam_conv, s.lam))
+            dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - lam_conv)
+            dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
+            shift_new = jnp.where(cut, 0.0, jnp.where(
+                ~descent, jnp.maximum(10.0 * s.shift, 1e-8 * k_ref),
+                jnp.where(s.shift > 1e-12 * k_ref, 0.1 * s.shift, 0.0)))
+            new_status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, status)
+            return (u_new, lam_new, dlam_new, cut, shift_new, jnp.where(cut, 0, step_it),
+                    s.cuts + cut, new_status)
+
+        def stay(_):
+            return (s.u, s.lam, dlam, jnp.asarray(False), s.shift, s.step_it, s.cuts, status)
+
+        u, lam, dlam, pred_next, shift, step_it, cuts, status = jax.lax.cond(status == RUNNING, advance, stay, None)
+        it = s.it + 1
+        status = jnp.where((status == RUNNING) & (it >= opts.max_iters), ITERATION_LIMIT, status)
+        return _State(u, lam, u_conv, lam_conv, dlam, pred_next, shift, it, step_it, steps, cuts, status,
+                      tol, k_ref, rnorm, s.history.at[s.it].set(rnorm))
+
+    zero = jnp.zeros(nf, dtype)
+    init = _State(zero, jnp.asarray(0.0, dtype), zero, jnp.asarray(0.0, dtype),
+                  jnp.asarray(opts.initial_increment, dtype), jnp.asarray(True), jnp.asarray(0.0, dtype),
+                  jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(RUNNING),
+                  jnp.asarray(0.0, dtype), jnp.asarray(1.0, dtype), jnp.asarray(jnp.inf, dtype),
+                  jnp.full(opts.max_iters, jnp.nan, dtype))
+    s = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)
+    info = NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
+    return s.u, info
+
+
+class SolverError(RuntimeError):
+    """Newton could not reach full load: says how far it got and why."""
+
+    def __init__(self, info: NewtonInfo, context: str = ""):
+        status = int(info.status)
+        self.info = info
+        msg = (f"{context}Newton solve failed: {STATUS_TEXT.get(status, status)}; converged up to load factor "
+               f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
+               f"load steps and {int(info.cuts)} cuts; last residual {float(info.residual):.3e} "
+               f"(tolerance {float(info.tolerance):.3e})")
+        super().__init__(msg)
+
+
+def check_converged(info: NewtonInfo, context: str = "") -> None:
+    status = np.asarray(info.status)
+    if status.ndim == 0:
+        if int(status) != CONVERGED:
+            raise SolverError(info, context)
+        return
+    for i in np.flatnonzero(status != CONVERGED):
+        raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ")
