@@ -88,5 +88,5 @@ class Simulator:
                         float(energy), seconds)
 
     def tracked(self, X, u) -> dict[str, jnp.ndarray]:
-        """Deformed positions of the scene's tracked points."""
-        return {k: X[i] + u[i] for k, i in self.disc.tracked.items()}
+        """Deformed positions of the scene's tracked material points."""
+        return self.disc.tracked_points(X + u)

@@ -46,7 +46,7 @@ class Discretisation:
     actuation_matrix: np.ndarray  # (nD, n_actuations): u_D = A @ d
     free_dofs: np.ndarray         # (nf,)
     external_force: np.ndarray    # (2 n_points,) dead load at full load factor
-    tracked: dict = field(default_factory=dict)  # name -> point index
+    tracked: dict = field(default_factory=dict)  # name -> (point indices (m*m,), basis weights (m*m,))
     group_points: dict = field(default_factory=dict)  # group name -> point indices
 
     @property
@@ -77,17 +77,23 @@ class Discretisation:
     def init_params(self):
         return self.design.init_params()
 
+    def tracked_points(self, points: jnp.ndarray) -> dict[str, jnp.ndarray]:
+        """Positions of the tracked material points for control points `points` (X or X + u)."""
+        return {k: jnp.asarray(w) @ points[idx] for k, (idx, w) in self.tracked.items()}
+
 
 def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
     a, b = np.asarray(seg[0], float), np.asarray(seg[1], float)
     ab = b - a
-    t = np.clip((pts - a) @ ab / (ab @ ab), 0.0, 1.0)
+    length2 = ab @ ab
+    if length2 == 0.0:  # a point actuator
+        return np.linalg.norm(pts - a, axis=1) < tol
+    t = np.clip((pts - a) @ ab / length2, 0.0, 1.0)
     return np.linalg.norm(pts - (a + t[:, None] * ab), axis=1) < tol
 
 
 def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float):
     """Consistent nodal forces of a dead traction on every patch edge lying on `seg`."""
-    t = np.linspace(0.0, 1.0, n_ctrl)
     spans = n_ctrl - 2
     gx, gw = gauss_legendre_01(quad)
     s = ((np.arange(spans)[:, None] + gx[None, :]) / spans).ravel()
@@ -103,8 +109,28 @@ def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol:
                 f = (N * (w * jac)[:, None]).sum(0)[:, None] * np.asarray(traction)[None, :]
                 idx = np.arange(n_ctrl * n_ctrl).reshape(n_ctrl, n_ctrl)[sl]
                 forces.append((pp, idx, f))
-    del t
     return forces
+
+
+def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
+    """Patch and parametric coordinates of a reference point (Newton inversion of each patch map)."""
+    m = nets.shape[1]
+    for p, net in enumerate(nets):
+        xi = np.array([0.5, 0.5])
+        for _ in range(30):
+            B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
+            dB = [basis_matrix(xi[k:k + 1], m, 1)[0] for k in range(2)]
+            x = np.einsum("i,j,ijd->d", B[0], B[1], net)
+            J = np.stack([np.einsum("i,j,ijd->d", dB[0], B[1], net),
+                          np.einsum("i,j,ijd->d", B[0], dB[1], net)], axis=1)
+            step = np.linalg.lstsq(J, target - x, rcond=None)[0]
+            xi = np.clip(xi + step, 0.0, 1.0)
+            if np.linalg.norm(step) < 1e-14:
+                break
+        B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
+        if np.linalg.norm(np.einsum("i,j,ijd->d", B[0], B[1], net) - target) < tol:
+            return p, xi
+    return -1, np.zeros(2)
 
 
 def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()) -> Discretisation:
@@ -177,13 +203,13 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
             np.add.at(f_ext, 2 * pts + 1, f[:, 1])
 
     tracked = {}
-    tree = cKDTree(points)
     for name, xy in spec.tracked.items():
-        dist, pnt = tree.query(xy)
-        if dist > tol:
-            raise ValueError(f"scene {spec.name}: tracked point {name} at {xy} is not a control point "
-                             f"(nearest is {points[pnt]})")
-        tracked[name] = int(pnt)
+        patch, xi = _locate(nets, np.asarray(xy, float), tol)
+        if patch < 0:
+            raise ValueError(f"scene {spec.name}: tracked point {name} at {xy} lies in no patch")
+        w = np.einsum("i,j->ij", basis_matrix(xi[:1], m)[0], basis_matrix(xi[1:], m)[0]).ravel()
+        keep = w > 1e-15
+        tracked[name] = (patch_points[patch][keep], w[keep])
 
     return Discretisation(
         spec=spec, design=design, fidelity=fidelity, n_points=n_points, patch_points=patch_points,

@@ -1,0 +1,105 @@
+"""Adjoint gradients against central finite differences, for every parameter kind, at ordinary
+points and at the extremes (radii 0.1 / 0.9, actuation +-d_max, nu = 0.49)."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma import config
+from nma.geometry.discretise import discretise
+from nma.geometry.sampling import sample_colours, sample_positions
+from nma.geometry.scene import scene_from_config
+from nma.mechanics.material import material
+from nma.simulator import Simulator
+from nma.solver.newton import NewtonOptions
+
+TIGHT = NewtonOptions(rtol=1e-12)  # FD of the solution needs it converged below the FD step's effect
+_SIMS = {}
+
+
+def tight_simulator(scene):
+    if scene not in _SIMS:
+        disc = discretise(scene_from_config(config.load("scene", scene)))
+        _SIMS[scene] = Simulator(disc, "pardiso", TIGHT)
+    return _SIMS[scene]
+
+
+def make_loss(sim, key):
+    """A random smooth functional of every deformed control point (actuated ones included),
+    of the tracked points, and for colour scenes of the colour-weighted material points."""
+    w = jax.random.normal(key, (sim.disc.n_points, 2)) / np.sqrt(sim.disc.n_points)
+
+    def loss(params, d, mat):
+        X = sim.reference_points(params)
+        u, _ = sim.equilibrium(X, d, mat)
+        x = X + u
+        out = jnp.sum(w * x) + 0.05 * jnp.sum(u ** 2) / sim.disc.n_points
+        out += sum(jnp.sum(p ** 2) for p in sim.tracked(X, u).values()) * 1e-3
+        if "colours" in params:
+            c = sample_colours(params["colours"], 5)
+            out += jnp.sum(c[..., None] * sample_positions(sim.disc, x, 5)) * 1e-3
+        return out
+
+    return jax.jit(loss), jax.jit(jax.grad(loss, argnums=(0, 1, 2)))
+
+
+def check_directional(sim, params, d, mat, key, kinds, h=1e-5, rtol=1e-6):
+    loss, grad = make_loss(sim, key)
+    g_params, g_d, g_mat = grad(params, d, mat)
+    keys = jax.random.split(jax.random.PRNGKey(7), 8)
+    for n, kind in enumerate(kinds):
+        if kind == "actuation":
+            v = jax.random.normal(keys[n], d.shape)
+            plus, minus, exact = (params, d + h * v, mat), (params, d - h * v, mat), jnp.vdot(g_d, v)
+        elif kind == "material":
+            v = jnp.array([0.07, 0.01]) * jax.random.normal(keys[n], (2,))
+            plus, minus, exact = (params, d, mat + h * v), (params, d, mat - h * v), jnp.vdot(g_mat, v)
+        else:
+            v = jax.random.normal(keys[n], params[kind].shape)
+            shifted = lambda s: {**params, kind: params[kind] + s * v}
+            plus, minus, exact = (shifted(h), d, mat), (shifted(-h), d, mat), jnp.vdot(g_params[kind], v)
+        fd = (loss(*plus) - loss(*minus)) / (2 * h)
+        assert np.isfinite(float(exact))
+        np.testing.assert_allclose(float(exact), float(fd), rtol=rtol, atol=1e-9, err_msg=kind)
+
+
+TRANSLATION_POINTS = [  # (radii, nu, actuation): ordinary, then the extremes of the task (d_max = 4)
+    (0.5, 0.3, [1.0, -0.5]),
+    (0.1, 0.3, [4.0, -4.0]),
+    (0.1, 0.3, [-4.0, 4.0]),
+    (0.9, 0.3, [4.0, -4.0]),
+    (0.5, 0.49, [4.0, -4.0]),
+]
+
+
+@pytest.mark.parametrize("radii, nu, d", TRANSLATION_POINTS)
+def test_translation_gradients(radii, nu, d):
+    sim = tight_simulator("translation")
+    p = sim.init_params()
+    params = {"radii": jnp.full_like(p["radii"], radii) + 0.02 * jax.random.uniform(
+        jax.random.PRNGKey(1), p["radii"].shape, minval=-1, maxval=1) * (0.1 < radii < 0.9)}
+    check_directional(sim, params, jnp.array(d), material(0.07, nu), jax.random.PRNGKey(0),
+                      ["radii", "actuation", "material"])
+
+
+def test_corner_gradients_rotation_double():
+    sim = tight_simulator("rotation_double")
+    p = sim.init_params()
+    params = {**p, "corners": 0.5 * jax.random.uniform(jax.random.PRNGKey(2), p["corners"].shape, minval=-1)}
+    check_directional(sim, params, jnp.array([3.0, -1.5]), material(0.07, 0.3), jax.random.PRNGKey(3),
+                      ["corners", "radii", "actuation"])
+
+
+def test_central_pore_gradients_shape_matching():
+    sim = tight_simulator("shape_matching")
+    d = 1.5 * jax.random.uniform(jax.random.PRNGKey(4), (12,), minval=-1)
+    check_directional(sim, sim.init_params(), d, material(0.07, 0.3), jax.random.PRNGKey(5),
+                      ["pore_radii", "corners", "actuation"])
+
+
+def test_colour_gradients_digital_mnist():
+    sim = tight_simulator("digital_mnist")
+    p = sim.init_params()
+    params = {**p, "colours": jax.random.normal(jax.random.PRNGKey(6), p["colours"].shape)}
+    check_directional(sim, params, jnp.array([3.0, -3.0, 2.0, 1.0, -1.0, 3.0]), material(0.07, 0.3),
+                      jax.random.PRNGKey(8), ["colours", "actuation"])

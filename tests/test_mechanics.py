@@ -1,0 +1,95 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma.geometry.discretise import Fidelity, discretise
+from nma.geometry.scene import Group, PatchSceneSpec, bilinear_net
+from nma.mechanics.energy import force_and_tangents, quadrature, strain_energy
+from nma.mechanics.material import material, neo_hookean, piola, tangent
+from nma.simulator import Simulator
+
+
+@pytest.fixture(scope="module")
+def translation(simulator):
+    sim = simulator("translation")
+    p = sim.init_params()
+    radii = jax.random.uniform(jax.random.PRNGKey(0), p["radii"].shape, minval=0.2, maxval=0.8)
+    X = sim.reference_points({"radii": radii})
+    return sim, X
+
+
+@pytest.mark.parametrize("motion", ["translation", "rotation"])
+def test_rigid_motion_has_zero_energy_and_force(translation, motion):
+    sim, X = translation
+    if motion == "translation":
+        u = jnp.broadcast_to(jnp.array([1.7, -0.4]), X.shape)
+    else:
+        c, s = np.cos(0.6), np.sin(0.6)
+        u = X @ jnp.array([[c, s], [-s, c]]) - X
+    mat = material(0.07, 0.3)
+    quad = quadrature(sim.disc, X)
+    assert abs(float(strain_energy(sim.disc, quad, u, mat))) < 1e-12
+    force, _ = force_and_tangents(sim.disc, quad, u, mat)
+    assert float(jnp.max(jnp.abs(force))) < 1e-12
+
+
+def test_tangent_is_the_derivative_of_the_force(translation):
+    """Element tangents contracted with a direction equal the directional derivative of the force."""
+    sim, X = translation
+    mat = material(0.07, 0.4)
+    quad = quadrature(sim.disc, X)
+    key1, key2 = jax.random.split(jax.random.PRNGKey(1))
+    u = 0.05 * jax.random.normal(key1, X.shape)
+    v = jax.random.normal(key2, X.shape)
+    _, kel = force_and_tangents(sim.disc, quad, u, mat)
+    from nma.solver.assembly import element_dofs
+    ed = element_dofs(sim.disc)
+    Kv = jnp.zeros(X.size).at[ed].add(jnp.einsum("eab,eb->ea", kel, v.reshape(-1)[ed]))
+    jvp = jax.jvp(lambda u: force_and_tangents(sim.disc, quad, u, mat)[0], (u,), (v,))[1]
+    np.testing.assert_allclose(Kv, jvp.reshape(-1), rtol=1e-10, atol=1e-12)
+
+
+def test_material_derivatives_match_finite_differences():
+    rng = np.random.default_rng(3)
+    F = np.eye(2) + 0.2 * rng.normal(size=(2, 2))
+    mu, kappa = 0.3, 2.0
+    h = 1e-6
+    fd = np.zeros((2, 2))
+    for i in range(2):
+        for j in range(2):
+            E = np.zeros((2, 2)); E[i, j] = h
+            fd[i, j] = (neo_hookean(F + E, mu, kappa) - neo_hookean(F - E, mu, kappa)) / (2 * h)
+    np.testing.assert_allclose(piola(jnp.asarray(F), mu, kappa), fd, rtol=1e-8)
+    C = np.asarray(tangent(jnp.asarray(F), mu, kappa))
+    np.testing.assert_allclose(C, C.transpose(2, 3, 0, 1), atol=1e-12)  # major symmetry (hyperelastic)
+
+
+def test_zero_actuation_gives_zero_displacement(translation):
+    sim, _ = translation
+    sol = sim.solve(sim.init_params(), jnp.zeros(2), material(0.07, 0.3))
+    assert np.abs(sol.u).max() == 0.0 and sol.energy == 0.0
+
+
+def _patch_test_scene(F0):
+    """One distorted patch whose every boundary control point is a point actuator moved by (F0 - I) X."""
+    net = bilinear_net([(0, 0), (4, 0), (4, 3), (0, 3)])
+    net[2, 2] += (0.4, -0.3)  # interior distortion: the map is curved, the exact solution stays affine
+    net[1, 3] += (-0.2, 0.25)
+    probe = discretise(PatchSceneSpec("probe", net[None]), Fidelity(8, 3))
+    X = np.asarray(probe.reference_points({}))
+    on_edge = (np.isclose(X[:, 0], 0) | np.isclose(X[:, 0], 4) | np.isclose(X[:, 1], 0) | np.isclose(X[:, 1], 3))
+    groups = []
+    for k, x in enumerate(X[on_edge]):
+        groups.append(Group(f"p{k}", (tuple(x), tuple(x)), k, tuple((F0 - np.eye(2)) @ x)))
+    return PatchSceneSpec("patch_test", net[None], groups=tuple(groups)), len(groups)
+
+
+@pytest.mark.parametrize("nu", [0.3, 0.49])
+def test_patch_test_reproduces_homogeneous_stretch(nu):
+    F0 = np.array([[1.25, 0.1], [-0.05, 0.85]])
+    spec, n = _patch_test_scene(F0)
+    sim = Simulator(discretise(spec, Fidelity(8, 3)), "pardiso")
+    sol = sim.solve({}, jnp.ones(n), material(1.0, nu))
+    exact = sol.X @ (F0 - np.eye(2)).T
+    np.testing.assert_allclose(sol.u, exact, atol=1e-10)

@@ -1,0 +1,73 @@
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma import config
+from nma.geometry.discretise import Fidelity, discretise
+from nma.geometry.scene import scene_from_config
+
+# REFERENCE.md "Scene sizes": measured by building the authors' scenes
+SIZES = {
+    "translation": (97, 1761, 3462),
+    "rotation_single": (193, 3481, 6902),
+    "rotation_double": (193, 3481, 6850),
+    "shape_matching": (172, 3112, 6096),
+    "digital_mnist": (126, 2245, 4374),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SIZES))
+def test_paper_scene_sizes(name):
+    disc = discretise(scene_from_config(config.load("scene", name)))
+    assert (disc.n_patches, disc.n_points, disc.n_dofs) == SIZES[name]
+
+
+def test_scene_holds_only_what_it_needs():
+    params = lambda n: set(discretise(scene_from_config(config.load("scene", n))).init_params())
+    assert params("translation") == {"radii"}
+    assert params("rotation_double") == {"radii", "corners"}
+    assert params("shape_matching") == {"radii", "corners", "pore_radii"}
+    assert params("digital_mnist") == {"radii", "colours"}
+
+
+def test_empty_and_solid_cells():
+    cfg = {"name": "mini", "cells": ["PS", ".P"], "pinned": [[10, 0]]}
+    disc = discretise(scene_from_config(cfg))
+    assert disc.n_patches == 4 + 1 + 4  # two porous cells, one solid, one empty
+
+
+def test_design_map_is_valid_across_the_radius_box():
+    disc = discretise(scene_from_config(config.load("scene", "rotation_double")))
+    p = disc.init_params()
+    from nma.mechanics.energy import quadrature
+    for r in (0.1, 0.9):
+        q = {**p, "radii": jnp.full_like(p["radii"], r), "corners": jnp.full_like(p["corners"], 2.25)}
+        assert float(jnp.min(quadrature(disc, disc.reference_points(q)).det)) > 0
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"radii_init": 1.2}, "radii_init"),
+    ({"radii_bounds": [0.5, 1.5]}, "radii_bounds"),
+    ({"cells": ["PX"]}, "unknown cell tokens"),
+    ({"corner_box": 3.0}, "corner_box"),
+])
+def test_bad_scene_config_names_the_field(bad, message):
+    cfg = {"name": "bad", "cells": ["PP"], "pinned": [[0, 0]], **bad}
+    with pytest.raises(ValueError, match=message):
+        scene_from_config(cfg)
+
+
+def test_fidelity_validation():
+    with pytest.raises(ValueError, match="quad_points"):
+        Fidelity(5, 0)
+    with pytest.raises(ValueError, match="ctrl_per_patch"):
+        Fidelity(7, 3)
+
+
+def test_refined_discretisation_keeps_geometry():
+    spec = scene_from_config(config.load("scene", "translation"))
+    coarse, fine = discretise(spec, Fidelity(5, 3)), discretise(spec, Fidelity(8, 3))
+    from nma.geometry.sampling import sample_positions
+    Xc = coarse.reference_points(coarse.init_params())
+    Xf = fine.reference_points(fine.init_params())
+    np.testing.assert_allclose(sample_positions(coarse, Xc, 7), sample_positions(fine, Xf, 7), atol=1e-12)

@@ -1,0 +1,80 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma.geometry.discretise import discretise
+from nma.geometry.scene import scene_from_config
+from nma.mechanics.material import material
+from nma.simulator import Simulator
+from nma.solver.newton import CONVERGED, NewtonOptions, SolverError
+
+SMALL = {"name": "small", "cells": ["PP", "PP"], "pinned": [[0, 0], [10, 0], [10, 10], [0, 10]],
+         "groups": [{"name": "left", "segment": [[0, 2], [0, 8]], "actuation": 0, "direction": [1, 0]},
+                    {"name": "top", "segment": [[2, 10], [8, 10]], "actuation": 1, "direction": [0, -1]}],
+         "tracked": {"centre": [5, 5]}}
+
+
+@pytest.mark.parametrize("nu", [0.3, 0.45, 0.49, 0.499])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_extremes_converge_or_fail_clearly(simulator, nu, sign):
+    """Translation at +-d_max (4.0): a converged answer is finite and balanced; otherwise a clear error."""
+    sim = simulator("translation")
+    d = sign * jnp.array([4.0, -4.0])
+    try:
+        sol = sim.solve(sim.init_params(), d, material(0.07, nu))
+    except SolverError as err:
+        assert "load factor" in str(err) and "residual" in str(err)
+        assert np.isfinite(float(err.info.load)) and 0.0 <= float(err.info.load) < 1.0
+        return
+    assert np.all(np.isfinite(sol.u)) and np.isfinite(sol.energy)
+    assert float(sol.info.residual) <= float(sol.info.tolerance)
+    # the Dirichlet groups moved exactly as declared: left by (-d0, 0)
+    left = sim.disc.group_points["left"]
+    np.testing.assert_allclose(sol.u[left], np.tile([-float(d[0]), 0.0], (len(left), 1)))
+
+
+def test_failure_reports_how_far_it_got():
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=8, initial_increment=0.25, grow=1.0))
+    with pytest.raises(SolverError, match=r"iteration limit") as err:
+        sim.solve(sim.init_params(), jnp.array([2.0, 2.0]), material(0.07, 0.3))
+    load = float(err.value.info.load)
+    assert 0.25 <= load < 1.0 and int(err.value.info.load_steps) >= 1
+    assert f"load factor {load:.4g} of 1 after 8 iterations" in str(err.value)
+
+
+def test_status_is_returned_under_jit_without_nan():
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=2))
+    X = sim.reference_points(sim.init_params())
+    u, info = jax.jit(sim.equilibrium)(X, jnp.array([2.0, 2.0]), material(0.07, 0.3))
+    assert int(info.status) != CONVERGED and np.all(np.isfinite(np.asarray(u)))
+
+
+def test_bad_actuation_is_rejected_before_work(simulator):
+    sim = simulator("translation")
+    with pytest.raises(ValueError, match="actuation must have 2 entries"):
+        sim.solve(sim.init_params(), jnp.zeros(3), material(0.07, 0.3))
+    with pytest.raises(ValueError, match="material.nu"):
+        material(0.07, 0.5)
+
+
+def test_backends_agree_and_dense_batches_under_vmap():
+    disc = discretise(scene_from_config(SMALL))
+    mat = material(0.07, 0.3)
+    sims = {name: Simulator(disc, name) for name in ("pardiso", "superlu", "dense")}
+    X = disc.reference_points(disc.init_params())
+    ds = jnp.array([[1.0, 0.5], [-1.5, 1.0], [0.5, -2.0]])
+    ref = [sims["superlu"].solve(disc.init_params(), d, mat).u for d in ds]
+    for name in ("pardiso", "dense"):
+        for d, u_ref in zip(ds, ref):
+            np.testing.assert_allclose(sims[name].solve(disc.init_params(), d, mat).u, u_ref, atol=1e-9)
+    u_batch, info = jax.jit(jax.vmap(sims["dense"].equilibrium, in_axes=(None, 0, None)))(X, ds, mat)
+    assert np.all(np.asarray(info.status) == CONVERGED)
+    np.testing.assert_allclose(u_batch, np.stack(ref), atol=1e-9)
+    # gradients through the batched dense solve match the host backend's adjoint
+    loss = lambda eq: lambda X: jnp.sum(jax.vmap(lambda d: eq(X, d, mat)[0], )(ds)[:, :, 1] ** 2)
+    g_dense = jax.grad(loss(sims["dense"].equilibrium))(X)
+    g_host = jax.jit(jax.grad(loss(sims["pardiso"].equilibrium)))(X)
+    np.testing.assert_allclose(g_dense, g_host, rtol=1e-7, atol=1e-10)
