@@ -115,7 +115,10 @@ def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol:
 def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
     """Patch and parametric coordinates of a reference point (Newton inversion of each patch map)."""
     m = nets.shape[1]
-    for p, net in enumerate(nets):
+    lo, hi = nets.min(axis=(1, 2)) - tol, nets.max(axis=(1, 2)) + tol
+    candidates = np.flatnonzero(np.all((lo <= target) & (target <= hi), axis=1))  # convex hull property
+    for p in candidates:
+        net = nets[p]
         xi = np.array([0.5, 0.5])
         for _ in range(30):
             B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
@@ -129,7 +132,7 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
                 break
         B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
         if np.linalg.norm(np.einsum("i,j,ijd->d", B[0], B[1], net) - target) < tol:
-            return p, xi
+            return int(p), xi
     return -1, np.zeros(2)
 
 

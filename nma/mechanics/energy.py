@@ -49,11 +49,13 @@ def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: j
     return jnp.where(jnp.all(J > 0), jnp.sum(quad.weights * W), jnp.inf)
 
 
-def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
-    """Internal force (n_points, 2) and element tangents (P*S2, 18, 18), dofs ordered (a, i) -> 2a + i."""
+def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
+    """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass;
+    tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
     flat = F.reshape(-1, 2, 2)
+    W = jax.vmap(neo_hookean, in_axes=(0, None, None))(flat, mu, kappa).reshape(quad.weights.shape)
     Pk = jax.vmap(piola, in_axes=(0, None, None))(flat, mu, kappa).reshape(F.shape)
     C = jax.vmap(tangent, in_axes=(0, None, None))(flat, mu, kappa).reshape(F.shape + (2, 2))
     wG = quad.weights[..., None, None] * quad.grads                    # (P, S2, Q, 9, 2)
@@ -61,7 +63,11 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
     force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
     H = jnp.einsum("psqaj,psqijkl->psqaikl", wG, C)
     Ke = jnp.einsum("psqaikl,psqbl->psaibk", H, quad.grads)
-    return force, Ke.reshape(-1, 18, 18)
+    return jnp.sum(quad.weights * W), force, Ke.reshape(-1, 18, 18)
+
+
+def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
+    return energy_force_tangents(disc, quad, u, mat)[1:]
 
 
 def min_jacobian(disc: Discretisation, quad: Quadrature, u: jnp.ndarray) -> jnp.ndarray:

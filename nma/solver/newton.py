@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.discretise import Discretisation
-from ..mechanics.energy import force_and_tangents, max_step, quadrature, strain_energy
+from ..mechanics.energy import energy_force_tangents, max_step, quadrature, strain_energy
 from .assembly import element_dofs
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT = 0, 1, 2, 3
@@ -116,9 +116,11 @@ class Equations:
         return jax.grad(self.potential, argnums=1)(quad, u_free, lam, u_D, mat)
 
     def linearise(self, quad, u_free, lam, u_D, mat):
-        """Free residual g_f and element tangents at a state."""
-        force, kel = force_and_tangents(self.disc, quad, self.full(u_free, lam, u_D), mat)
-        return force.reshape(-1)[self.free] - lam * self.f_ext[self.free], kel
+        """Potential, free residual g_f and element tangents at a state."""
+        u = self.full(u_free, lam, u_D)
+        energy, force, kel = energy_force_tangents(self.disc, quad, u, mat)
+        potential = energy - lam * jnp.dot(self.f_ext, u.reshape(-1))
+        return potential, force.reshape(-1)[self.free] - lam * self.f_ext[self.free], kel
 
     def coupling(self, kel, u_D):
         """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
@@ -145,8 +147,8 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
         a = max_step(disc, quad, eqs.full(u, lam, u_D), du_full)
         return jnp.where(jnp.isnan(a), 0.0, a)
 
-    def line_search(u, lam, du, slope, alpha0):
-        E0 = energy(u, lam)
+    def line_search(u, lam, du, E0, slope, alpha0):
+        """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy)."""
         slack = 1e-12 * jnp.abs(E0) + 1e-300
 
         def ok(a, Ea):
@@ -161,11 +163,11 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
             a = 0.5 * a
             return a, energy(u + a * du, lam), k + 1
 
-        a, Ea, _ = jax.lax.while_loop(cond, body, (alpha0, energy(u + alpha0 * du, lam), 0))
+        a, Ea, _ = jax.lax.while_loop(cond, body, (2.0 * alpha0, jnp.inf, 0))
         return a, ok(a, Ea) & (alpha0 > 0)
 
     def body(s: _State) -> _State:
-        g, kel = eqs.linearise(quad, s.u, s.lam, u_D, mat)
+        E0, g, kel = eqs.linearise(quad, s.u, s.lam, u_D, mat)
         rnorm = jnp.linalg.norm(g)
         first = s.it == 0
         kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
@@ -189,17 +191,17 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
             finite = jnp.all(jnp.isfinite(du))
             du = jnp.where(finite, du, jnp.zeros_like(du))
 
+            # the step may go a fraction of the way to J = 0 (predictor: load moves along)
+            a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, jnp.where(predictor, dlam, 0.0)))
+
             def predict(_):
-                # move load and free dofs together, as far as J > 0 allows
-                a = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, dlam))
-                return a, finite & (a * dlam >= opts.min_increment), jnp.asarray(True)
+                return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
 
             def correct(_):
                 # bounded line search on the energy at fixed load
                 slope = jnp.dot(g, du)
                 descent = finite & (slope < 0)
-                a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, 0.0))
-                a, ok = line_search(s.u, s.lam, du, slope, a0)
+                a, ok = line_search(s.u, s.lam, du, E0, slope, a0)
                 return a, descent & ok, descent
 
             a, ok, descent = jax.lax.cond(predictor, predict, correct, None)

@@ -1,0 +1,22 @@
+PYTHON ?= python3
+
+.PHONY: install test test-all bench simulate clean
+
+install:            ## install nma and its test dependencies (editable)
+	$(PYTHON) -m pip install -e ".[test]"
+
+test:               ## fast tests (the CI run)
+	$(PYTHON) -m pytest -q
+
+test-all:           ## every test, the slow physics checks included
+	$(PYTHON) -m pytest -q -m ""
+
+bench:              ## solver speed per scene and the fidelity sweep -> outputs/bench/solver.json
+	$(PYTHON) experiments/bench_solver.py
+
+simulate:           ## one forward solve of the translation scene
+	$(PYTHON) -m nma.simulate scene=translation actuation=[1.0,-0.5]
+
+clean:
+	rm -rf outputs/simulate outputs/bench .pytest_cache
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

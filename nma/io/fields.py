@@ -1,0 +1,72 @@
+"""Deformation fields to HDF5, with an XDMF companion that ParaView opens directly."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..geometry.discretise import Discretisation
+from ..geometry.sampling import quad_cells, sample_jacobian, sample_positions
+
+_XDMF = """<?xml version="1.0" ?>
+<Xdmf Version="3.0">
+  <Domain>
+    <Grid Name="{name}" GridType="Uniform">
+      <Topology TopologyType="Quadrilateral" NumberOfElements="{n_cells}">
+        <DataItem Dimensions="{n_cells} 4" NumberType="Int" Precision="8" Format="HDF">{h5}:/mesh/cells</DataItem>
+      </Topology>
+      <Geometry GeometryType="XY">
+        <DataItem Dimensions="{n_nodes} 2" NumberType="Float" Precision="8" Format="HDF">{h5}:/mesh/reference</DataItem>
+      </Geometry>
+      <Attribute Name="displacement" AttributeType="Vector" Center="Node">
+        <DataItem Dimensions="{n_nodes} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/fields/displacement</DataItem>
+      </Attribute>
+      <Attribute Name="J" AttributeType="Scalar" Center="Node">
+        <DataItem Dimensions="{n_nodes}" NumberType="Float" Precision="8" Format="HDF">{h5}:/fields/J</DataItem>
+      </Attribute>
+{extra}    </Grid>
+  </Domain>
+</Xdmf>
+"""
+_SCALAR = """      <Attribute Name="{name}" AttributeType="Scalar" Center="Node">
+        <DataItem Dimensions="{n_nodes}" NumberType="Float" Precision="8" Format="HDF">{h5}:/fields/{name}</DataItem>
+      </Attribute>
+"""
+
+
+def write_fields(path: Path, disc: Discretisation, X, u, samples: int = 9, scalars: dict | None = None,
+                 attrs: dict | None = None) -> tuple[Path, Path]:
+    """Write control points and sampled fields to `path` (.h5) and `path.with_suffix('.xdmf')`.
+
+    The sampled mesh joins s x s material points per patch into quads; displacement is written with a
+    zero third component so ParaView's Warp By Vector applies it directly."""
+    path = Path(path).with_suffix(".h5")
+    X, u = np.asarray(X), np.asarray(u)
+    ref = np.asarray(sample_positions(disc, X, samples)).reshape(-1, 2)
+    cur = np.asarray(sample_positions(disc, X + u, samples)).reshape(-1, 2)
+    J = np.asarray(sample_jacobian(disc, X, u, samples)).reshape(-1)
+    cells = quad_cells(disc.n_patches, samples)
+    disp = np.concatenate([cur - ref, np.zeros((len(ref), 1))], axis=1)
+    tmp = path.with_suffix(".h5.tmp")
+    with h5py.File(tmp, "w") as f:
+        f.create_dataset("control/reference", data=X)
+        f.create_dataset("control/displacement", data=u)
+        f.create_dataset("control/patch_points", data=disc.patch_points)
+        f.create_dataset("mesh/reference", data=ref)
+        f.create_dataset("mesh/deformed", data=cur)
+        f.create_dataset("mesh/cells", data=cells)
+        f.create_dataset("fields/displacement", data=disp)
+        f.create_dataset("fields/J", data=J)
+        for name, v in (scalars or {}).items():
+            f.create_dataset(f"fields/{name}", data=np.asarray(v).reshape(-1))
+        f.attrs["scene"] = disc.spec.name
+        f.attrs["samples_per_side"] = samples
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+    tmp.replace(path)
+    extra = "".join(_SCALAR.format(name=n, n_nodes=len(ref), h5=path.name) for n in (scalars or {}))
+    xdmf = path.with_suffix(".xdmf")
+    xdmf.write_text(_XDMF.format(name=disc.spec.name, n_cells=len(cells), n_nodes=len(ref), h5=path.name,
+                                 extra=extra))
+    return path, xdmf

@@ -1,0 +1,47 @@
+"""Figures of reference and deformed shapes (matplotlib, headless)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import PolyCollection  # noqa: E402
+
+from ..geometry.discretise import Discretisation  # noqa: E402
+from ..geometry.sampling import sample_positions  # noqa: E402
+
+
+def patch_outlines(disc: Discretisation, points, samples: int = 9) -> list[np.ndarray]:
+    """Boundary polygon of every patch, traced through its material sample points."""
+    grid = np.asarray(sample_positions(disc, points, samples)).reshape(disc.n_patches, samples, samples, 2)
+    return [np.concatenate([g[:, 0], g[-1, 1:], g[::-1, -1][1:], g[0, ::-1][1:]]) for g in grid]
+
+
+def draw_shape(ax, disc: Discretisation, points, title: str = "", colour="#8fa8c8", tracked=None,
+               samples: int = 9):
+    ax.add_collection(PolyCollection(patch_outlines(disc, points, samples), facecolors=colour,
+                                     edgecolors="#2b3a55", linewidths=0.3))
+    if tracked:
+        xy = np.array([np.asarray(v) for v in tracked.values()])
+        ax.plot(xy[:, 0], xy[:, 1], "o", color="#2ca02c", ms=4)
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_title(title, fontsize=9)
+    ax.axis("off")
+
+
+def save_reference_and_deformed(path: Path, disc: Discretisation, X, u, title: str = "") -> Path:
+    X, u = np.asarray(X), np.asarray(u)
+    fig, axes = plt.subplots(1, 2, figsize=(8, 4), sharex=True, sharey=True)
+    draw_shape(axes[0], disc, X, "reference", tracked=disc.tracked_points(X))
+    draw_shape(axes[1], disc, X + u, "deformed", colour="#d9a38f", tracked=disc.tracked_points(X + u))
+    for group in disc.group_points.values():
+        axes[1].plot(*(X + u)[group].T, "-", color="#c0392b", lw=2)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
