@@ -71,6 +71,15 @@ class Simulator:
             raise ValueError("actuation must be finite")
         return d
 
+    def equilibrium_batch(self, X, ds, mat):
+        """Solves for a batch of actuations (n, n_act) on one geometry. Host backends solve one sample
+        after the other (lax.map), so each Newton loop stops when it converges; a pure-JAX backend
+        runs the batch in lockstep under vmap (parallel on a GPU)."""
+        solve = lambda d: self.equilibrium(X, d, mat)
+        if getattr(self.backend, "parallel_batches", False):
+            return jax.vmap(solve)(ds)
+        return jax.lax.map(solve, ds)
+
     def _solve_impl(self, params, d, mat):
         X = self.reference_points(params)
         u, info = self.equilibrium(X, d, mat)

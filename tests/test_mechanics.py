@@ -61,7 +61,11 @@ def test_material_derivatives_match_finite_differences():
             E = np.zeros((2, 2)); E[i, j] = h
             fd[i, j] = (neo_hookean(F + E, mu, kappa) - neo_hookean(F - E, mu, kappa)) / (2 * h)
     np.testing.assert_allclose(piola(jnp.asarray(F), mu, kappa), fd, rtol=1e-8)
+    # the closed-form stress and tangent equal autodiff of the energy
+    np.testing.assert_allclose(piola(jnp.asarray(F), mu, kappa), jax.grad(neo_hookean)(jnp.asarray(F), mu, kappa),
+                               rtol=1e-13)
     C = np.asarray(tangent(jnp.asarray(F), mu, kappa))
+    np.testing.assert_allclose(C, jax.hessian(neo_hookean)(jnp.asarray(F), mu, kappa), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(C, C.transpose(2, 3, 0, 1), atol=1e-12)  # major symmetry (hyperelastic)
 
 

@@ -42,6 +42,7 @@ def write_fields(path: Path, disc: Discretisation, X, u, samples: int = 9, scala
     The sampled mesh joins s x s material points per patch into quads; displacement is written with a
     zero third component so ParaView's Warp By Vector applies it directly."""
     path = Path(path).with_suffix(".h5")
+    path.parent.mkdir(parents=True, exist_ok=True)
     X, u = np.asarray(X), np.asarray(u)
     ref = np.asarray(sample_positions(disc, X, samples)).reshape(-1, 2)
     cur = np.asarray(sample_positions(disc, X + u, samples)).reshape(-1, 2)

@@ -45,6 +45,22 @@ def neo_hookean(F: jnp.ndarray, mu, kappa) -> jnp.ndarray:
     return 0.5 * mu * (jnp.sum(F * F) - 2.0 - 2.0 * logJ) + 0.5 * kappa * logJ ** 2
 
 
-# first Piola stress and the 4th-order tangent dP/dF, per point
-piola = jax.grad(neo_hookean)
-tangent = jax.hessian(neo_hookean)
+def _inverse(F):
+    return jnp.stack([jnp.stack([F[..., 1, 1], -F[..., 0, 1]], -1),
+                      jnp.stack([-F[..., 1, 0], F[..., 0, 0]], -1)], -2) / det2(F)[..., None, None]
+
+
+def piola(F, mu, kappa):
+    """First Piola stress P = dW/dF = mu (F - F^-T) + kappa log J F^-T (closed form)."""
+    FinvT = jnp.swapaxes(_inverse(F), -1, -2)
+    return mu * (F - FinvT) + kappa * jnp.log(det2(F))[..., None, None] * FinvT
+
+
+def tangent(F, mu, kappa):
+    """dP/dF: C_ijkl = mu d_ik d_jl + (mu - kappa log J) Fi_jk Fi_li + kappa Fi_ji Fi_lk, Fi = F^-1."""
+    Fi = _inverse(F)
+    logJ = jnp.log(det2(F))[..., None, None, None, None]
+    eye = jnp.eye(2)
+    return (mu * jnp.einsum("ik,jl->ijkl", eye, eye)
+            + (mu - kappa * logJ) * jnp.einsum("...jk,...li->...ijkl", Fi, Fi)
+            + kappa * jnp.einsum("...ji,...lk->...ijkl", Fi, Fi))

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from ..geometry.discretise import Discretisation
+from ..registry import LINEAR_SOLVERS
 from .assembly import element_entries, sparse_pattern
 
 REFINE_RTOL = 1e-13
@@ -53,7 +54,9 @@ class HostBackend:
             rhs = np.asarray(rhs, dtype=np.float64)
             A = self.pattern.matrix(np.asarray(kel))
             scale = np.linalg.norm(rhs)
-            if self._factor is not None and scale > 0:
+            if scale == 0.0:  # e.g. a sample masked out of the loss
+                return np.zeros_like(rhs)
+            if self._factor is not None:
                 x = self._factor.solve(rhs)
                 for _ in range(REFINE_STEPS):
                     r = rhs - self._matvec(A, x)
@@ -85,6 +88,7 @@ class _PardisoFactor:
         return self.solver._call_pardiso(self.A, np.asfortranarray(b)).reshape(b.shape)
 
 
+@LINEAR_SOLVERS.register("pardiso")
 class PardisoBackend(HostBackend):
     """Intel MKL PARDISO, symmetric indefinite (mtype -2): symbolic analysis once per pattern,
     numerical refactorisation (phase 22) per Newton iteration."""
@@ -115,6 +119,7 @@ class PardisoBackend(HostBackend):
         return A @ x + A.T @ x - A.diagonal() * x
 
 
+@LINEAR_SOLVERS.register("superlu")
 class SuperLUBackend(HostBackend):
     """scipy's SuperLU: portable, no extra dependency."""
     name = "superlu"
@@ -123,9 +128,11 @@ class SuperLUBackend(HostBackend):
         return spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A")
 
 
+@LINEAR_SOLVERS.register("dense")
 class DenseBackend:
     """Pure JAX: dense assembly and LU solve. Traceable, vmap-parallel; meant for GPUs."""
     name = "dense"
+    parallel_batches = True  # batches run in lockstep under vmap
 
     def __init__(self, disc: Discretisation):
         rows, cols = element_entries(disc)
@@ -145,10 +152,5 @@ class DenseBackend:
         return jnp.linalg.solve(self._matrix(kel, 0.0), rhs)
 
 
-LINEAR_BACKENDS = {"pardiso": PardisoBackend, "superlu": SuperLUBackend, "dense": DenseBackend}
-
-
 def make_backend(name: str, disc: Discretisation):
-    if name not in LINEAR_BACKENDS:
-        raise ValueError(f"solver.linear must be one of {sorted(LINEAR_BACKENDS)}, got {name!r}")
-    return LINEAR_BACKENDS[name](disc)
+    return LINEAR_SOLVERS.get(name)(disc)

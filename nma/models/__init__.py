@@ -1,0 +1,1 @@
+from .mlp import Encoder  # noqa: F401  (registers the models)

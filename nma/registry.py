@@ -1,0 +1,36 @@
+"""Name -> factory registries for the components chosen in YAML (tasks, models, linear solvers)."""
+from __future__ import annotations
+
+from typing import Callable, Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    def __init__(self, kind: str):
+        self.kind = kind
+        self._items: dict[str, Callable[..., T]] = {}
+
+    def register(self, name: str):
+        def deco(factory):
+            if name in self._items:
+                raise ValueError(f"{self.kind} {name!r} is registered twice")
+            self._items[name] = factory
+            return factory
+        return deco
+
+    def get(self, name: str) -> Callable[..., T]:
+        if name not in self._items:
+            raise ValueError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
+        return self._items[name]
+
+    def names(self) -> list[str]:
+        return sorted(self._items)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._items
+
+
+TASKS: Registry = Registry("task.name")
+MODELS: Registry = Registry("model.name")
+LINEAR_SOLVERS: Registry = Registry("solver.linear")

@@ -1,0 +1,2 @@
+from . import rotation, translation  # noqa: F401  (registers the tasks)
+from .base import Task  # noqa: F401

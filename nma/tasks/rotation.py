@@ -1,0 +1,62 @@
+"""Rotation (paper Sec. 4.1, Figs. 5-6): rotate the centre square's stick by theta about the centre."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..registry import TASKS
+from .base import Task, check_range
+
+
+class Rotation(Task):
+    metric_name = "mean_angle_error_deg"
+    metric_unit = "degrees"
+
+    def __init__(self, name, centre, points, theta_range, d_max, eval_angles):
+        self.name = name
+        self.centre = jnp.asarray(centre)
+        self.points = jnp.asarray(points)          # (2, 2) reference positions of left and right ends
+        self.lo, self.hi = theta_range
+        self.d_max = d_max
+        self._eval = jnp.linspace(self.lo, self.hi, eval_angles)[:, None]
+
+    def sample(self, key, n):
+        return jax.random.uniform(key, (n, 1), minval=self.lo, maxval=self.hi)
+
+    def observe(self, sim, X, u):
+        tracked = sim.tracked(X, u)
+        return jnp.stack([tracked["left"], tracked["right"]])
+
+    def targets(self, t):
+        th = t[..., 0]
+        c, s = jnp.cos(th), jnp.sin(th)
+        R = jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)  # (..., 2, 2)
+        return self.centre + jnp.einsum("...ij,pj->...pi", R, self.points - self.centre)
+
+    def metric(self, out, t):
+        v = out[..., 1, :] - out[..., 0, :]
+        angle = jnp.arctan2(v[..., 1], v[..., 0])
+        err = jnp.angle(jnp.exp(1j * (angle - t[..., 0])))  # wrapped to (-pi, pi]
+        return jnp.degrees(jnp.abs(err))
+
+    def eval_set(self):
+        return self._eval
+
+
+def _rotation(name):
+    def build(cfg, sim) -> Rotation:
+        X = sim.reference_points(sim.init_params())
+        tracked = sim.disc.tracked_points(X)
+        lo, hi = (float(a) for a in cfg.theta_range)
+        if not -np.pi <= lo < hi <= np.pi:
+            raise ValueError(f"task.theta_range must satisfy -pi <= lo < hi <= pi, got {[lo, hi]}")
+        centre = 0.5 * (tracked["left"] + tracked["right"])
+        return Rotation(name, centre, jnp.stack([tracked["left"], tracked["right"]]), (lo, hi),
+                        check_range("task.d_max", cfg.d_max, 1e-6, 5.0),
+                        int(check_range("task.eval_angles", cfg.eval_angles, 2, 1000)))
+    return build
+
+
+TASKS.register("rotation_single")(_rotation("rotation_single"))
+TASKS.register("rotation_double")(_rotation("rotation_double"))

@@ -1,0 +1,45 @@
+"""Translation (paper Sec. 4.1): move the pointer to any target in a box with two horizontal actuations."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..registry import TASKS
+from .base import Task, check_range
+
+
+class Translation(Task):
+    metric_name = "mean_pointer_error"
+    metric_unit = "length units (cell = 5)"
+
+    def __init__(self, start, half_width: float, d_max: float, eval_grid: int, point: str = "pointer"):
+        self.name = "translation"
+        self.start = jnp.asarray(start)
+        self.half_width, self.d_max, self.point = half_width, d_max, point
+        g = np.linspace(-half_width, half_width, eval_grid)
+        self._eval = jnp.asarray(np.stack(np.meshgrid(g, g, indexing="xy"), -1).reshape(-1, 2))
+
+    def sample(self, key, n):
+        return jax.random.uniform(key, (n, 2), minval=-self.half_width, maxval=self.half_width)
+
+    def observe(self, sim, X, u):
+        return sim.tracked(X, u)[self.point]
+
+    def targets(self, t):
+        return self.start + t
+
+    def metric(self, out, t):
+        return jnp.linalg.norm(out - self.targets(t), axis=-1)
+
+    def eval_set(self):
+        return self._eval
+
+
+@TASKS.register("translation")
+def translation(cfg, sim) -> Translation:
+    X = sim.reference_points(sim.init_params())
+    start = sim.disc.tracked_points(X)["pointer"]
+    return Translation(start, check_range("task.box_half_width", cfg.box_half_width, 0.0, 5.0),
+                       check_range("task.d_max", cfg.d_max, 1e-6, 5.0),
+                       int(check_range("task.eval_grid", cfg.eval_grid, 1, 100)))

@@ -1,0 +1,79 @@
+"""What a finished run leaves in its directory: metrics, fields of the evaluation samples, figures."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..io.fields import write_fields  # noqa: E402
+from ..viz.plot import draw_shape  # noqa: E402
+
+
+def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: dict) -> Path:
+    path = run_dir / "metrics.json"
+    body = {"task": task.name, "metric": task.metric_name, "unit": task.metric_unit,
+            "value": evaluation[task.metric_name], "step": evaluation["step"],
+            "failed_solves": evaluation["failed_solves"], "per_sample": evaluation["per_sample"],
+            "history": history, **extra}
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(body, indent=1))
+    tmp.replace(path)
+    return path
+
+
+def write_eval_fields(run_dir: Path, sim, evaluation: dict, samples: int) -> list[Path]:
+    X, d, u, out, ts, ok = evaluation["_solution"]
+    paths = []
+    for i in range(len(ts)):
+        if not ok[i]:
+            continue
+        h5, _ = write_fields(run_dir / "fields" / f"eval_{i:03d}.h5", sim.disc, X, u[i], samples,
+                             attrs={"descriptor": np.asarray(ts[i]), "actuation": np.asarray(d[i]),
+                                    "observed": np.asarray(out[i])})
+        paths.append(h5)
+    return paths
+
+
+def figure_designs(path: Path, sim, X_before, X_after):
+    fig, axes = plt.subplots(1, 2, figsize=(8, 4))
+    draw_shape(axes[0], sim.disc, np.asarray(X_before), "design before")
+    draw_shape(axes[1], sim.disc, np.asarray(X_after), "design after", colour="#7fb58f")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def figure_deformed(path: Path, sim, task, evaluation: dict, n: int = 4):
+    X, d, u, out, ts, ok = evaluation["_solution"]
+    pick = np.linspace(0, len(ts) - 1, min(n, len(ts))).astype(int)
+    fig, axes = plt.subplots(1, len(pick), figsize=(3.2 * len(pick), 3.4))
+    for ax, i in zip(np.atleast_1d(axes), pick):
+        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"t = {np.round(np.asarray(ts[i]), 2).tolist()}",
+                   colour="#d9a38f")
+        tgt = np.asarray(task.targets(ts[i])).reshape(-1, 2)
+        obs = np.asarray(out[i]).reshape(-1, 2)
+        ax.plot(tgt[:, 0], tgt[:, 1], "x", color="#1f3fbf", ms=7, mew=2, label="target")
+        ax.plot(obs[:, 0], obs[:, 1], "o", color="#2ca02c", ms=4, label="reached")
+    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def figure_curves(path: Path, task, history: list):
+    steps = [h["step"] for h in history]
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
+    ax[0].plot(steps, [h["loss"] for h in history], lw=1)
+    ax[0].set(xlabel="step", ylabel="training loss", yscale="log")
+    ev = [(h["step"], h[task.metric_name]) for h in history if task.metric_name in h]
+    if ev:
+        ax[1].plot(*zip(*ev), "o-", ms=3)
+    ax[1].set(xlabel="step", ylabel=f"{task.metric_name} [{task.metric_unit}]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)

@@ -1,0 +1,40 @@
+"""Data parallelism over MPI: rank 0 owns the run directory; gradients are summed with Allreduce."""
+from __future__ import annotations
+
+import numpy as np
+
+
+class World:
+    """The MPI world, or a single process when not launched under mpiexec."""
+
+    def __init__(self):
+        try:
+            from mpi4py import MPI
+            self.comm = MPI.COMM_WORLD
+            self._sum = MPI.SUM
+        except ImportError:  # pragma: no cover - mpi4py is a dependency; keep single-process use working
+            self.comm = None
+        self.rank = self.comm.Get_rank() if self.comm else 0
+        self.size = self.comm.Get_size() if self.comm else 1
+
+    @property
+    def is_root(self) -> bool:
+        return self.rank == 0
+
+    def allreduce_sum(self, x: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if self.size == 1:
+            return x
+        out = np.empty_like(x)
+        self.comm.Allreduce(x, out, op=self._sum)
+        return out
+
+    def bcast(self, obj):
+        return obj if self.size == 1 else self.comm.bcast(obj, root=0)
+
+    def shard(self, n: int) -> slice:
+        """This rank's contiguous slice of a global batch of n samples."""
+        if n % self.size:
+            raise ValueError(f"trainer.batch_size ({n}) must be a multiple of the number of MPI ranks ({self.size})")
+        k = n // self.size
+        return slice(self.rank * k, (self.rank + 1) * k)
