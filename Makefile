@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: install test test-all bench simulate clean
+.PHONY: install test test-all bench simulate run repro-translation repro-rotation-single repro-rotation-double clean
 
 install:            ## install nma and its test dependencies (editable)
 	$(PYTHON) -m pip install -e ".[test]"
@@ -17,6 +17,18 @@ bench:              ## solver speed per scene and the fidelity sweep -> outputs/
 simulate:           ## one forward solve of the translation scene
 	$(PYTHON) -m nma.simulate scene=translation actuation=[1.0,-0.5]
 
+run:                ## train the default experiment (translation, 100 steps)
+	$(PYTHON) -m nma.run
+
+repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
+	$(PYTHON) experiments/repro.py translation
+
+repro-rotation-single:
+	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60
+
+repro-rotation-double:
+	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60
+
 clean:
-	rm -rf outputs/simulate outputs/bench .pytest_cache
+	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro .pytest_cache
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

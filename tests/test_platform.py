@@ -1,0 +1,161 @@
+"""The experiment platform: configs, the training command, its run directory, MPI and resume."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import serialization
+from hydra import compose, initialize_config_dir
+
+from nma import config
+from nma.run import validate
+
+FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
+        "task.eval_grid=2", "fidelity=fast"]
+
+
+def compose_cfg(*overrides):
+    with initialize_config_dir(config_dir=str(config.CONF_DIR), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def nma_run(run_dir, *overrides, mpi=0, timeout=600):
+    cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
+    if mpi:
+        cmd = ["mpiexec", "-n", str(mpi), *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc
+
+
+def final_params(run_dir):
+    ckpts = sorted((Path(run_dir) / "checkpoints").glob("step_*.msgpack"))
+    return serialization.msgpack_restore(ckpts[-1].read_bytes())["params"]
+
+
+def assert_same_params(a, b, rtol):
+    flat_a, flat_b = (dict(_flatten(x)) for x in (a, b))
+    assert flat_a.keys() == flat_b.keys()
+    for k in flat_a:
+        np.testing.assert_allclose(flat_a[k], flat_b[k], rtol=rtol, atol=1e-12, err_msg=k)
+
+
+def _flatten(tree, prefix=""):
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            yield from _flatten(v, f"{prefix}/{k}")
+    else:
+        yield prefix, np.asarray(tree)
+
+
+@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment"])
+def test_every_config_option_composes_and_validates(group):
+    for option in config.options(group):
+        cfg = compose_cfg(f"{group}={option}")
+        validate(cfg)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("material.nu=0.5", "material.nu must be in (-1, 0.5)"),
+    ("scene.radii_bounds=[0.1,1.5]", "scene.radii_bounds"),
+    ("optim.lr=-0.1", "optim.lr must be > 0"),
+    ("trainer.steps=0", "trainer.steps must be >= 1"),
+    ("solver.linear=cholesky", "solver.linear must be one of"),
+    ("optim.lr_scale.radii=-1", "optim.lr_scale.radii"),
+])
+def test_bad_config_names_field_and_range(override, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        validate(compose_cfg(override))
+
+
+def test_unknown_task_stops_before_work(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "nma.run", "task=juggling", f"hydra.run.dir={tmp_path}"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "juggling" in proc.stderr
+
+
+@pytest.fixture(scope="module")
+def translation_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("translation")
+    nma_run(run_dir, "task=translation", "logger=wandb", *FAST)
+    return run_dir
+
+
+def test_run_directory_holds_every_artefact(translation_run):
+    d = translation_run
+    assert (d / ".hydra" / "config.yaml").exists() and (d / "run.log").exists()
+    assert list((d / "checkpoints").glob("step_0000002.msgpack"))
+    metrics = json.loads((d / "metrics.json").read_text())
+    assert metrics["metric"] == "mean_pointer_error" and np.isfinite(metrics["value"])
+    assert [h["step"] for h in metrics["history"]] == [1, 2]
+    assert len(list((d / "fields").glob("eval_*.h5"))) == 4 == len(list((d / "fields").glob("eval_*.xdmf")))
+    for png in ("design.png", "deformed.png", "curves.png"):
+        assert (d / "figures" / png).stat().st_size > 5_000
+    assert list((d / "wandb").glob("offline-run-*"))  # wandb logs offline by default
+
+
+def test_hdf5_fields_match_the_solution(translation_run):
+    import h5py
+
+    from nma.mechanics.material import material
+    from nma.simulator import Simulator
+
+    sim = Simulator.from_config(config.load("scene", "translation"), config.load("fidelity", "fast"))
+    geom = {k: jnp.asarray(v) for k, v in final_params(translation_run)["geom"].items()}
+    with h5py.File(translation_run / "fields" / "eval_001.h5") as f:
+        d, u_file, X_file = f.attrs["actuation"], f["control/displacement"][()], f["control/reference"][()]
+    sol = sim.solve(geom, jnp.asarray(d), material(0.07, 0.3))
+    np.testing.assert_allclose(X_file, sol.X, atol=1e-12)
+    np.testing.assert_allclose(u_file, sol.u, atol=1e-9)
+
+
+@pytest.mark.parametrize("task", ["rotation_single", "rotation_double"])
+def test_rotation_tasks_train_from_the_command_line(tmp_path, task):
+    nma_run(tmp_path, f"task={task}", "logger=none", "task.eval_angles=3", *FAST[:-2])
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["metric"] == "mean_angle_error_deg" and len(metrics["per_sample"]) == 3
+    assert len(list((tmp_path / "fields").glob("eval_*.h5"))) == 3
+
+
+def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
+    nma_run(tmp_path, "task=translation", "logger=none", *FAST, mpi=2)
+    assert not list(tmp_path.parent.glob(f"{tmp_path.name}_*"))  # one run directory
+    assert (tmp_path / "metrics.json").exists()
+    assert_same_params(final_params(tmp_path), final_params(translation_run), rtol=1e-9)
+
+
+def test_kill_and_resume_matches_uninterrupted(tmp_path):
+    args = ["task=translation", "logger=none", "trainer.steps=5", "trainer.checkpoint_every=1",
+            "trainer.eval_every=5", "trainer.batch_size=2", "trainer.progress=false", "task.eval_grid=2",
+            "fidelity=fast"]
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "nma.run", f"hydra.run.dir={killed}", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 300
+    while not (killed / "checkpoints" / "step_0000002.msgpack").exists():
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    nma_run(killed, *args, "trainer.resume=true")
+    assert "resumed from" in (killed / "run.log").read_text()
+    nma_run(tmp_path / "straight", *args)
+    assert_same_params(final_params(killed), final_params(tmp_path / "straight"), rtol=1e-12)
+
+
+def test_multirun_sweeps_seeds(tmp_path):
+    cmd = [sys.executable, "-m", "nma.run", "--multirun", "trainer.seed=0,1", f"hydra.sweep.dir={tmp_path}",
+           "task=translation", "logger=none", "trainer.steps=1", "trainer.batch_size=1", "trainer.eval_every=1",
+           "trainer.progress=false", "task.eval_grid=1", "fidelity=fast"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    runs = sorted(tmp_path.glob("*/metrics.json"))
+    assert len(runs) == 2
+    a, b = (final_params(r.parent)["net"] for r in runs)
+    assert not np.allclose(dict(_flatten(a))["/params/Dense_0/kernel"], dict(_flatten(b))["/params/Dense_0/kernel"])
