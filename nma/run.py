@@ -38,7 +38,8 @@ def validate(cfg: DictConfig):
     fidelity = Fidelity(**OmegaConf.to_container(cfg.fidelity))
     solver = dict(OmegaConf.to_container(cfg.solver))
     options = NewtonOptions.from_config(solver)
-    optim = OptimConfig(float(cfg.optim.lr), dict(OmegaConf.to_container(cfg.optim.lr_scale)))
+    optim = OptimConfig(float(cfg.optim.lr), dict(OmegaConf.to_container(cfg.optim.lr_scale)),
+                        str(cfg.optim.get("schedule", "constant")), float(cfg.optim.get("final_fraction", 0.1)))
     trainer = TrainerConfig(**OmegaConf.to_container(cfg.trainer))
     return spec, fidelity, solver["linear"], options, optim, trainer
 

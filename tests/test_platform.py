@@ -131,8 +131,8 @@ def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
 
 
 def test_kill_and_resume_matches_uninterrupted(tmp_path):
-    args = ["task=translation", "logger=none", "trainer.steps=5", "trainer.checkpoint_every=1",
-            "trainer.eval_every=5", "trainer.batch_size=2", "trainer.progress=false", "task.eval_grid=2",
+    args = ["task=translation", "logger=none", "trainer.steps=4", "trainer.checkpoint_every=1",
+            "trainer.eval_every=4", "trainer.batch_size=1", "trainer.progress=false", "task.eval_grid=1",
             "fidelity=fast"]
     killed = tmp_path / "killed"
     proc = subprocess.Popen([sys.executable, "-m", "nma.run", f"hydra.run.dir={killed}", *args],

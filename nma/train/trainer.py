@@ -58,10 +58,16 @@ class TrainerConfig:
 class OptimConfig:
     lr: float = 1e-3
     lr_scale: dict = field(default_factory=dict)
+    schedule: str = "constant"      # or "cosine": decays to final_fraction * lr over the run
+    final_fraction: float = 0.1
 
     def __post_init__(self):
         if not self.lr > 0:
             raise ValueError(f"optim.lr must be > 0, got {self.lr}")
+        if self.schedule not in ("constant", "cosine"):
+            raise ValueError(f"optim.schedule must be constant or cosine, got {self.schedule!r}")
+        if not 0 <= self.final_fraction <= 1:
+            raise ValueError(f"optim.final_fraction must be in [0, 1], got {self.final_fraction}")
         for k, v in self.lr_scale.items():
             if k not in GEOMETRY_GROUPS:
                 raise ValueError(f"optim.lr_scale.{k} is unknown; allowed {list(GEOMETRY_GROUPS)}")
@@ -69,12 +75,17 @@ class OptimConfig:
                 raise ValueError(f"optim.lr_scale.{k} must be >= 0 (0 freezes the group), got {v}")
 
 
-def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool):
+def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int):
     """Adam per parameter group; a frozen group (scale 0 or the geometry-frozen baseline) gets no update."""
-    transforms = {"network": optax.adam(ocfg.lr)}
+    def lr(scale):
+        if ocfg.schedule == "cosine":
+            return optax.cosine_decay_schedule(ocfg.lr * scale, steps, alpha=ocfg.final_fraction)
+        return ocfg.lr * scale
+
+    transforms = {"network": optax.adam(lr(1.0))}
     for k in geometry_keys:
         scale = 0.0 if freeze_geometry else float(ocfg.lr_scale.get(k, 1.0))
-        transforms[k] = optax.adam(ocfg.lr * scale) if scale > 0 else optax.set_to_zero()
+        transforms[k] = optax.adam(lr(scale)) if scale > 0 else optax.set_to_zero()
     labels = {"net": "network", "geom": {k: k for k in geometry_keys}}
     return optax.multi_transform(transforms, labels)
 
@@ -94,7 +105,7 @@ class Trainer:
         strong = lambda tree: jax.tree_util.tree_map(lambda a: jnp.array(a, dtype=a.dtype), tree)
         self.bounds = sim.disc.design.bounds()
         params = strong({"net": model.init(init_key, task.net_input(t0)), "geom": geom})  # no weak types: one compile
-        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry)
+        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps)
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
