@@ -21,7 +21,7 @@ run:                ## train the default experiment (translation, 100 steps)
 	$(PYTHON) -m nma.run
 
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
-	$(PYTHON) experiments/repro.py translation
+	$(PYTHON) experiments/repro.py translation --baseline-steps 80
 
 repro-rotation-single:
 	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60

@@ -178,9 +178,8 @@ class Trainer:
             return False
         restored = checkpoint.restore(found[1], self._payload())
         self.history = json.loads(restored.pop("history"))
-        restored["step"] = int(restored["step"])
-        self.state = jax.tree_util.tree_map(jnp.asarray, restored)
-        self.state["step"] = int(restored["step"])
+        step = int(restored.pop("step"))
+        self.state = {**jax.tree_util.tree_map(jnp.asarray, restored), "step": step}
         log.info("resumed from %s at step %d", found[1], self.state["step"])
         return True
 
