@@ -98,6 +98,7 @@ def bench_scene(scene, repeats, linear="pardiso"):
                         "converged": bool(int(info.status) == 1), "newton_iterations": int(info.iterations),
                         "load_steps": int(info.load_steps)})
         out["largest_actuation"] = big
+    out["linear_solver_counts"] = dict(sim.backend.stats)  # adjoint_refactorisations 0: factor reused
     out["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .bspline import DESIGN_CTRL
-from .scene import EMPTY, POROUS, SOLID, PatchSceneSpec, SceneSpec, bilinear_net
+from .scene import POROUS, SOLID, PatchSceneSpec, SceneSpec
 
 _T = np.linspace(0.0, 1.0, DESIGN_CTRL)  # design net parameters along a side / radially
 
@@ -145,4 +145,3 @@ def initial_nets(design) -> np.ndarray:
     return np.asarray(design.nets(design.init_params()))
 
 
-__all__ = ["GridDesign", "FixedDesign", "make_design", "pore_nets", "initial_nets", "bilinear_net", "EMPTY"]

@@ -5,7 +5,6 @@ The material is an array [E, nu] so that it is a differentiable input like any o
 """
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 

@@ -7,7 +7,6 @@ plus the direct term A^T u_bar_D of the points that sit on actuated boundaries.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 
 from ..mechanics.energy import force_and_tangents, quadrature
 from .newton import Equations, NewtonOptions, newton_solve

@@ -139,7 +139,7 @@ class DenseBackend:
         keep = np.flatnonzero((rows >= 0) & (cols >= 0))
         self.n = disc.n_dofs
         self.keep, self.rows, self.cols = keep, rows[keep], cols[keep]
-        self.stats = {}
+        self.stats = {}  # counts happen inside traced code; nothing to report
 
     def _matrix(self, kel, shift):
         K = jnp.zeros((self.n, self.n), kel.dtype).at[self.rows, self.cols].add(kel.reshape(-1)[self.keep])
