@@ -24,11 +24,6 @@ class Registry(Generic[T]):
             raise ValueError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
         return self._items[name]
 
-    def names(self) -> list[str]:
-        return sorted(self._items)
-
-    def __contains__(self, name: str) -> bool:
-        return name in self._items
 
 
 TASKS: Registry = Registry("task.name")

@@ -61,10 +61,6 @@ class Discretisation:
     def n_actuations(self) -> int:
         return self.actuation_matrix.shape[1]
 
-    @property
-    def n_elements(self) -> int:
-        return self.elem_points.shape[0] * self.elem_points.shape[1]
-
     def analysis_nets(self, params) -> jnp.ndarray:
         """(P, m, m, 2) analysis control nets: the design nets refined by knot insertion (exact)."""
         R = jnp.asarray(refinement_operator(self.fidelity.ctrl_per_patch))

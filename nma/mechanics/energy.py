@@ -70,10 +70,6 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
     return energy_force_tangents(disc, quad, u, mat)[1:]
 
 
-def min_jacobian(disc: Discretisation, quad: Quadrature, u: jnp.ndarray) -> jnp.ndarray:
-    return jnp.min(det2(deformation_gradient(disc, quad, u)))
-
-
 def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray) -> jnp.ndarray:
     """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point.
 

@@ -172,8 +172,11 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
         first = s.it == 0
         kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
         k_ref = jnp.where(first, kdiag, s.k_ref)
-        f_ref = jnp.linalg.norm(eqs.coupling(kel, u_D) - f_free) + jnp.linalg.norm(f_free)
-        tol = jnp.where(first, opts.rtol * f_ref + opts.atol * kdiag * size, s.tol)
+        def initial_tolerance(_):  # force scale of the full load, from the first linearisation only
+            f_ref = jnp.linalg.norm(eqs.coupling(kel, u_D) - f_free) + jnp.linalg.norm(f_free)
+            return opts.rtol * f_ref + opts.atol * kdiag * size
+
+        tol = jax.lax.cond(first, initial_tolerance, lambda _: s.tol, None)
 
         # a corrector that meets the tolerance closes its load step
         step_done = (~s.predictor) & (rnorm <= tol)
