@@ -1,11 +1,21 @@
-"""Where the configs live, and plain (non-Hydra) loading of one config group option."""
+"""Where the configs live, and plain (non-Hydra) loading of one config group option.
+
+`load("scene", "translation")` is the option's YAML merged onto its schema (nma/schema.py) and
+checked, as a plain dict: what Hydra would compose for that group, without Hydra.
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
 import yaml
+from omegaconf import OmegaConf
+
+from . import schema
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+GROUP_SCHEMAS = {"scene": schema.SceneConfig, "fidelity": schema.Fidelity, "solver": schema.SolverConfig,
+                 "model": schema.ModelConfig, "optim": schema.OptimConfig, "trainer": schema.TrainerConfig,
+                 "logger": schema.LoggerConfig}
 
 
 def options(group: str) -> list[str]:
@@ -15,5 +25,10 @@ def options(group: str) -> list[str]:
 def load(group: str, name: str) -> dict:
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.exists():
-        raise ValueError(f"{group}={name!r} is unknown; choose one of {options(group)}")
-    return yaml.safe_load(path.read_text())
+        raise schema.ConfigError(f"{group}={name!r} is unknown; choose one of {options(group)}")
+    body = yaml.safe_load(path.read_text()) or {}
+    body.pop("defaults", None)
+    if group == "task":
+        body.setdefault("name", name)
+    kind = schema.TASK_SCHEMAS[name] if group == "task" else GROUP_SCHEMAS[group]
+    return OmegaConf.to_container(OmegaConf.structured(schema.build(kind, body)))

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from typing import Callable, Generic, TypeVar
 
+from .schema import ConfigError
+
 T = TypeVar("T")
 
 
@@ -21,7 +23,7 @@ class Registry(Generic[T]):
 
     def get(self, name: str) -> Callable[..., T]:
         if name not in self._items:
-            raise ValueError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
+            raise ConfigError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
         return self._items[name]
 
 

@@ -1,54 +1,60 @@
 """Train one experiment: python -m nma.run [task=rotation_double] [trainer.steps=200] [logger=none]
 
-Under `mpiexec -n N` every rank runs this; rank 0 picks the run directory before Hydra starts and
-broadcasts it, and only rank 0 writes (config, log, checkpoints, fields, figures, metrics, wandb).
+The whole config is checked against the schema (nma/schema.py) before any work; exit codes as in
+nma/cli.py.  Under `mpiexec -n N` every rank runs this; rank 0 picks the run directory before Hydra
+starts and broadcasts it, and only rank 0 writes (config, log, checkpoints, fields, figures,
+metrics, wandb).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from . import cli
 from .config import CONF_DIR
+from .schema import TrainConfig, build, register
 
 log = logging.getLogger("nma.run")
+register()
 
 
-def validate(cfg: DictConfig):
-    """Turn the composed config into checked settings before any work; raise ValueError naming the field."""
-    from .geometry.discretise import Fidelity
-    from .geometry.scene import scene_from_config
-    from .mechanics.material import check_material
-    from .registry import LINEAR_SOLVERS, MODELS, TASKS
-    from .solver.newton import NewtonOptions
-    from .train.trainer import OptimConfig, TrainerConfig
+def validate(cfg: DictConfig) -> TrainConfig:
+    """The composed config as checked settings; ConfigError names the field and its allowed range.
+    Nothing is built: only the registries are consulted for the component names."""
     from . import models, tasks  # noqa: F401  (register components)
+    from .registry import LINEAR_SOLVERS, MODELS, TASKS
     from .solver import linear  # noqa: F401
 
-    check_material(float(cfg.material.E), float(cfg.material.nu))
-    TASKS.get(cfg.task.name)
-    MODELS.get(cfg.model.name)
-    LINEAR_SOLVERS.get(cfg.solver.linear)
-    if cfg.task.name != cfg.scene.name:
-        raise ValueError(f"scene {cfg.scene.name!r} does not fit task {cfg.task.name!r}")
-    spec = scene_from_config(OmegaConf.to_container(cfg.scene))
-    fidelity = Fidelity(**OmegaConf.to_container(cfg.fidelity))
-    solver = dict(OmegaConf.to_container(cfg.solver))
-    options = NewtonOptions.from_config(solver)
-    optim = OptimConfig(float(cfg.optim.lr), dict(OmegaConf.to_container(cfg.optim.lr_scale)),
-                        str(cfg.optim.get("schedule", "constant")), float(cfg.optim.get("final_fraction", 0.1)))
-    trainer = TrainerConfig(**OmegaConf.to_container(cfg.trainer))
-    return spec, fidelity, solver["linear"], options, optim, trainer
+    settings = build(TrainConfig, cfg)
+    TASKS.get(settings.task.name)
+    MODELS.get(settings.model.name)
+    LINEAR_SOLVERS.get(settings.solver.linear)
+    return settings
 
 
-def train(cfg: DictConfig, run_dir: Path) -> dict:
+def fingerprint(s: TrainConfig) -> dict:
+    """The settings that shape the parameters, the optimiser state or the data: a checkpoint written
+    under other values must not be continued silently."""
+    asdict = dataclasses.asdict
+    trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
+    if s.optim.schedule != "constant":
+        trainer["steps"] = s.trainer.steps  # the schedule's length
+    return {"task": asdict(s.task), "scene": asdict(s.scene), "model": asdict(s.model),
+            "fidelity": asdict(s.fidelity), "material": asdict(s.material), "optim": asdict(s.optim),
+            "trainer": trainer}
+
+
+def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
     from .geometry.discretise import discretise
+    from .geometry.scene import scene_from_config
     from .mechanics.material import material
     from .registry import MODELS, TASKS
     from .simulator import Simulator
@@ -57,19 +63,17 @@ def train(cfg: DictConfig, run_dir: Path) -> dict:
     from .train.mpi import World
     from .train.trainer import Trainer
 
-    spec, fidelity, linear, options, optim, tcfg = validate(cfg)
     world = World()
-    sim = Simulator(discretise(spec, fidelity), linear, options)
-    task = TASKS.get(cfg.task.name)(cfg.task, sim)
-    model = MODELS.get(cfg.model.name)(hidden=list(cfg.model.hidden), n_out=sim.n_actuations,
-                                       d_max=task.d_max, out_bias=bool(cfg.model.out_bias))
-    logger = make_logger(cfg.logger, run_dir, OmegaConf.to_container(cfg, resolve=True),
-                         run_dir.name, world.is_root)
-    trainer = Trainer(task, sim, model, material(cfg.material.E, cfg.material.nu), tcfg, optim, run_dir,
-                      logger, world)
+    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity), s.solver.linear, s.solver.newton())
+    task = TASKS.get(s.task.name)(s.task, sim)
+    model = MODELS.get(s.model.name)(hidden=s.model.hidden or s.task.hidden, n_out=sim.n_actuations, d_max=task.d_max,
+                                     out_bias=s.model.out_bias)
+    logger = make_logger(s.logger, run_dir, config, run_dir.name, world.is_root)
+    trainer = Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
+                      logger, world, fingerprint(s))
     X_before = sim.reference_points(trainer.state["params"]["geom"])
     log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.n_dofs, world.size,
-             tcfg.batch_size, "frozen" if tcfg.freeze_geometry else "learned")
+             s.trainer.batch_size, "frozen" if s.trainer.freeze_geometry else "learned")
     evaluation = trainer.fit()
     logger.finish()
     if not world.is_root:
@@ -80,43 +84,51 @@ def train(cfg: DictConfig, run_dir: Path) -> dict:
     artefacts.figure_designs(figures / "design.png", sim, X_before, X_after)
     artefacts.figure_deformed(figures / "deformed.png", sim, task, evaluation)
     artefacts.figure_curves(figures / "curves.png", task, trainer.history)
-    artefacts.write_eval_fields(run_dir, sim, evaluation, tcfg.fields_samples)
+    if task.outline:
+        artefacts.figure_shapes(figures / "shapes.png", task, evaluation)
+    artefacts.write_eval_fields(run_dir, sim, evaluation, s.trainer.fields_samples)
     artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
-                            {"freeze_geometry": tcfg.freeze_geometry, "ranks": world.size,
-                             "batch_size": tcfg.batch_size, "steps": tcfg.steps})
+                            {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
+                             "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
+                             "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     log.info("final %s = %.4g %s", task.metric_name, evaluation[task.metric_name], task.metric_unit)
     return evaluation
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
-    run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    try:
-        train(cfg, run_dir)
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    from omegaconf import OmegaConf
 
-
-def _mpi_argv() -> None:
-    """Under MPI: one run directory for all ranks, chosen by rank 0; ranks > 0 write nothing."""
     from .train.mpi import World
 
-    world = World()
-    if world.size == 1:
-        return
-    if not any(a.startswith("hydra.run.dir=") for a in sys.argv[1:]):
-        import time
-        task = next((a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("task=")), "translation")
-        stamp = time.strftime("%Y-%m-%d_%H-%M-%S") if world.is_root else None
-        sys.argv.append(f"hydra.run.dir=outputs/runs/{task}/{world.bcast(stamp)}_mpi{world.size}")
-    if not world.is_root:
-        sys.argv += ["hydra.output_subdir=null", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled",
-                     "trainer.progress=false"]
+    run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
+    with cli.exit_codes(World().rank):
+        train(validate(cfg), run_dir, OmegaConf.to_container(cfg, resolve=True))
 
 
 def main() -> None:
-    _mpi_argv()
+    from .train import checkpoint
+    from .train.mpi import World
+
+    world = World()
+
+    def check(cfg, hydra_cfg, multirun: bool):
+        settings = validate(cfg)
+        world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
+        if settings.trainer.resume == "true" and not multirun:
+            # before Hydra records this run's config over the old one: does the checkpoint fit?
+            found = checkpoint.load_latest(Path(hydra_cfg.run.dir) / "checkpoints", warn=False)
+            if found:
+                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
+
+    hydra_cfg = cli.preflight("config", check, sys.argv[1:], world.rank)
+    if world.size > 1:
+        if hydra_cfg is not None and not {"--multirun", "-m"} & set(sys.argv[1:]):
+            # one run directory for all ranks, picked by rank 0 from its composed config (follows the task)
+            sys.argv.append(f"hydra.run.dir={world.bcast(str(hydra_cfg.run.dir) if world.is_root else None)}")
+        if not world.is_root:
+            sys.argv += ["hydra.output_subdir=null", "hydra/job_logging=disabled",
+                         "hydra/hydra_logging=disabled", "trainer.progress=false"]
     hydra_main()
 
 

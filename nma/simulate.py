@@ -4,42 +4,60 @@
 
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
-converged, seconds).  Exits with status 1 and a clear message if the solve cannot reach full load.
+converged, seconds); a value that is not finite is written as null, so the line is always JSON.
+Exit codes as in nma/cli.py: 2 for bad input (before any work), 1 if the solve cannot reach full
+load (the JSON line says how far it got).
 """
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from . import cli
 from .config import CONF_DIR
+from .schema import SimulateConfig, build, register
+
+register()
 
 
-def run(cfg: DictConfig, out_dir: Path) -> dict:
+def validate(cfg: DictConfig) -> SimulateConfig:
+    from .registry import LINEAR_SOLVERS
+    from .solver import linear  # noqa: F401  (register backends)
+
+    settings = build(SimulateConfig, cfg)
+    LINEAR_SOLVERS.get(settings.solver.linear)
+    return settings
+
+
+def run(s: SimulateConfig, out_dir: Path) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import numpy as np
 
+    from .geometry.discretise import discretise
+    from .geometry.scene import scene_from_config
     from .io.fields import write_fields
     from .mechanics.material import material
     from .simulator import Simulator
     from .solver.newton import SolverError
     from .viz.plot import save_reference_and_deformed
 
-    mat = material(cfg.material.E, cfg.material.nu)  # validates before any work
+    spec = scene_from_config(s.scene)
+    mat = material(s.material.E, s.material.nu)
     t0 = time.perf_counter()
-    sim = Simulator.from_config(OmegaConf.to_container(cfg.scene), cfg.fidelity, cfg.solver)
-    build = time.perf_counter() - t0
-    d = jnp.zeros(sim.n_actuations) if cfg.actuation is None else jnp.asarray(list(cfg.actuation), float)
-    d = sim.check_actuation(d)
-    result = {"scene": sim.disc.spec.name, "dofs": sim.disc.n_dofs, "actuation": np.asarray(d).tolist(),
-              "material": {"E": float(cfg.material.E), "nu": float(cfg.material.nu)}}
+    sim = Simulator(discretise(spec, s.fidelity), s.solver.linear, s.solver.newton())
+    build_seconds = time.perf_counter() - t0
+    d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
+    result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "actuation": np.asarray(d).tolist(),
+              "material": {"E": s.material.E, "nu": s.material.nu}}
     try:
         sol = sim.solve(sim.init_params(), d, mat)
     except SolverError as err:
@@ -48,33 +66,46 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
                 "load_steps": int(info.load_steps), "newton_iterations": int(info.iterations),
                 "residual": float(info.residual)}
     tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(sol.X, sol.u).items()}
-    h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, sol.X, sol.u, cfg.output.samples,
+    h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, sol.X, sol.u, s.output.samples,
                             attrs={"actuation": np.asarray(d), "energy": sol.energy})
     result.update({
         "tracked": tracked, "energy": sol.energy, "load_steps": int(sol.info.load_steps),
         "newton_iterations": int(sol.info.iterations), "converged": True,
         "residual": float(sol.info.residual), "tolerance": float(sol.info.tolerance),
-        "seconds": sol.seconds, "build_seconds": build, "fields": str(h5), "xdmf": str(xdmf)})
-    if cfg.output.figure:
+        "seconds": sol.seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
+    if s.output.figure:
         png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, sol.X, sol.u,
-                                          f"{sim.disc.spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")
+                                          f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")
         result["figure"] = str(png)
     return result
 
 
+def json_safe(value):
+    """Non-finite floats as null (JSON has no NaN or Infinity)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
 @hydra.main(config_path=str(CONF_DIR), config_name="simulate", version_base="1.3")
-def main(cfg: DictConfig) -> None:
+def hydra_main(cfg: DictConfig) -> None:
     out_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    try:
-        result = run(cfg, out_dir)
-    except ValueError as err:  # bad input: say which field, before any work
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+    with cli.exit_codes():
+        result = run(validate(cfg), out_dir)
     if not result["converged"]:
-        print(result["error"], file=sys.stderr)
-    print(json.dumps(result), flush=True)
+        print(f"error: {result['error']}", file=sys.stderr)
+    print(json.dumps(json_safe(result), allow_nan=False), flush=True)
     if not result["converged"]:
-        sys.exit(1)
+        sys.exit(cli.FAILED)
+
+
+def main() -> None:
+    cli.preflight("simulate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
+    hydra_main()
 
 
 if __name__ == "__main__":

@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .geometry.discretise import Discretisation, Fidelity, discretise
+from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_from_config
+from .schema import ConfigError, Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import make_equilibrium
 from .solver.linear import make_backend
@@ -48,9 +49,8 @@ class Simulator:
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None) -> "Simulator":
-        solver = dict(solver or {})
-        disc = discretise(scene_from_config(scene), Fidelity(**dict(fidelity or {})))
-        return cls(disc, solver.pop("linear", "pardiso"), NewtonOptions.from_config(solver))
+        solver = build(SolverConfig, solver)
+        return cls(discretise(scene_from_config(scene), build(Fidelity, fidelity)), solver.linear, solver.newton())
 
     @property
     def n_actuations(self) -> int:
@@ -65,10 +65,10 @@ class Simulator:
     def check_actuation(self, d) -> jnp.ndarray:
         d = jnp.atleast_1d(jnp.asarray(d, dtype=jnp.float64))
         if d.shape != (self.n_actuations,):
-            raise ValueError(f"actuation must have {self.n_actuations} entries for scene "
+            raise ConfigError(f"actuation must have {self.n_actuations} entries for scene "
                              f"{self.disc.spec.name}, got shape {tuple(d.shape)}")
         if not np.all(np.isfinite(np.asarray(d))):
-            raise ValueError("actuation must be finite")
+            raise ConfigError(f"actuation must be finite, got {np.asarray(d).tolist()}")
         return d
 
     def equilibrium_batch(self, X, ds, mat):

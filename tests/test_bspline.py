@@ -31,6 +31,9 @@ def test_refinement_is_exact_knot_insertion():
         np.testing.assert_allclose(basis_matrix(x, n) @ fine, basis_matrix(x, 5) @ coarse, atol=1e-12)
 
 
-def test_refinement_rejects_non_nested_counts():
-    with pytest.raises(ValueError, match="ctrl_per_patch"):
-        refinement_operator(6)
+@pytest.mark.parametrize("count", [4, 6, 7, 9])
+def test_fidelity_rejects_non_nested_counts(count):
+    """Only 3k + 2 control points nest the design knots (knot insertion is then exact)."""
+    from nma.schema import ConfigError, Fidelity
+    with pytest.raises(ConfigError, match="fidelity.ctrl_per_patch"):
+        Fidelity(count, 3)

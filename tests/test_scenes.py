@@ -5,8 +5,9 @@ import pytest
 from nma import config
 from nma.geometry.discretise import Fidelity, discretise
 from nma.geometry.scene import scene_from_config
+from nma.mechanics.energy import quadrature
 
-# REFERENCE.md "Scene sizes": measured by building the authors' scenes
+# Patch, point and DOF counts of the authors' five scenes, measured by building them with their code
 SIZES = {
     "translation": (97, 1761, 3462),
     "rotation_single": (193, 3481, 6902),
@@ -48,6 +49,7 @@ def test_design_map_is_valid_across_the_radius_box():
 @pytest.mark.parametrize("bad, message", [
     ({"radii_init": 1.2}, "radii_init"),
     ({"radii_bounds": [0.5, 1.5]}, "radii_bounds"),
+    ({"radii_bounds": [0.0, 0.9]}, "radii_bounds"),
     ({"cells": ["PX"]}, "unknown cell tokens"),
     ({"corner_box": 3.0}, "corner_box"),
 ])
@@ -71,3 +73,31 @@ def test_refined_discretisation_keeps_geometry():
     Xc = coarse.reference_points(coarse.init_params())
     Xf = fine.reference_points(fine.init_params())
     np.testing.assert_allclose(sample_positions(coarse, Xc, 7), sample_positions(fine, Xf, 7), atol=1e-12)
+
+
+@pytest.mark.parametrize("lo, init", [(1e-6, 1e-6), (0.05, 0.999999)])
+def test_merging_follows_the_topology_not_the_radii(lo, init):
+    """A radius at its bound must not merge a pore's sides into one point (nor split anything)."""
+    cfg = {**config.load("scene", "translation"), "radii_bounds": [lo, 0.999999], "radii_init": init}
+    disc = discretise(scene_from_config(cfg))
+    assert (disc.n_patches, disc.n_points, disc.n_dofs) == SIZES["translation"]
+
+
+def test_projection_keeps_every_cell_convex():
+    """The paper's corner box (0.45 of a cell) admits non-convex cells; projection never does."""
+    import jax
+
+    from nma.geometry.design import MIN_TURN
+    disc = discretise(scene_from_config(config.load("scene", "rotation_double")))
+    design, p = disc.design, disc.init_params()
+    assert float(jnp.min(design.corner_turns(p))) == pytest.approx(1.0)
+    for seed in range(5):
+        step = 3.0 * jax.random.normal(jax.random.PRNGKey(seed), p["corners"].shape)
+        q = design.project({**p, "corners": p["corners"] + step}, p)
+        assert float(jnp.min(design.corner_turns(q))) >= MIN_TURN - 1e-9
+        assert float(jnp.max(jnp.abs(q["corners"]))) <= 2.25
+        assert float(jnp.min(quadrature(disc, disc.reference_points(q)).det)) > 0
+    small = {**p, "corners": p["corners"] + 0.1}
+    np.testing.assert_array_equal(design.project(small, p)["corners"], small["corners"])  # a valid step stays
+    unprojected = {**p, "corners": jnp.clip(p["corners"] + step, -2.25, 2.25)}
+    assert float(jnp.min(design.corner_turns(unprojected))) < 0  # the box alone would have folded a cell

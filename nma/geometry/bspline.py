@@ -11,6 +11,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.interpolate import BSpline
 
+
 DEGREE = 2
 DESIGN_CTRL = 5  # the design net of every patch: 5 x 5 control points, 3 x 3 knot spans
 
@@ -35,20 +36,11 @@ def greville(n_ctrl: int) -> np.ndarray:
     return np.array([t[i + 1:i + 1 + DEGREE].mean() for i in range(n_ctrl)])
 
 
-def check_ctrl_per_patch(n_ctrl: int) -> None:
-    if n_ctrl < DESIGN_CTRL or (n_ctrl - DEGREE) % (DESIGN_CTRL - DEGREE):
-        raise ValueError(
-            f"fidelity.ctrl_per_patch must be 5, 8, 11, 14, ... (3k + 2, k >= 1) so that the analysis "
-            f"knots nest the design knots; got {n_ctrl}")
-
-
-@lru_cache(maxsize=None)
 def refinement_operator(n_ctrl: int) -> np.ndarray:
     """R (n_ctrl, 5): h-refinement (knot insertion) of the 5-point design net, exact for any net.
 
     The design space is a subspace of the analysis space because the analysis knots nest the design
     knots, so solving B_fine R = B_coarse at n_ctrl distinct points gives the exact operator."""
-    check_ctrl_per_patch(n_ctrl)
     x = greville(n_ctrl)
     fine = basis_matrix(x, n_ctrl)
     coarse = basis_matrix(x, DESIGN_CTRL)
@@ -72,8 +64,6 @@ def element_tables(n_ctrl: int, quad: int):
       grads       (S*S, Q, 9, 2) dN/dxi, dN/deta (parametric, patch coordinates in [0, 1]^2)
       weights     (S*S, Q)   Gauss weights times the span area
     """
-    if quad < 1:
-        raise ValueError(f"fidelity.quad_points must be >= 1, got {quad}")
     spans = n_ctrl - DEGREE
     h = 1.0 / spans
     gx, gw = gauss_legendre_01(quad)

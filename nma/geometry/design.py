@@ -19,6 +19,7 @@ from .bspline import DESIGN_CTRL
 from .scene import POROUS, SOLID, PatchSceneSpec, SceneSpec
 
 _T = np.linspace(0.0, 1.0, DESIGN_CTRL)  # design net parameters along a side / radially
+MIN_TURN = 0.05  # smallest corner turn of a cell, relative to the square grid's, that projection allows
 
 
 def pore_nets(polygon: jnp.ndarray, radii: jnp.ndarray) -> jnp.ndarray:
@@ -92,12 +93,55 @@ class GridDesign:
             p["colours"] = jnp.zeros((self.n_patches, DESIGN_CTRL, DESIGN_CTRL))
         return p
 
+    def topology_params(self) -> dict[str, jnp.ndarray]:
+        """Parameters at which every cell is a regular pore: the reference for merging points."""
+        p = self.init_params()
+        return {**p, **{k: jnp.full_like(p[k], 0.5) for k in ("radii", "pore_radii") if k in p},
+                **({"corners": jnp.zeros_like(p["corners"])} if "corners" in p else {})}
+
     def bounds(self) -> dict[str, tuple[float, float]]:
         """Box of every geometry parameter (projection target after each optimiser update)."""
         lo, hi = self.spec.radii_bounds
         b = {"radii": (lo, hi), "corners": (-self.spec.corner_box, self.spec.corner_box),
              "pore_radii": (lo, hi), "colours": (-np.inf, np.inf)}
         return {k: b[k] for k in self.init_params()}
+
+    def corner_turns(self, params) -> jnp.ndarray:
+        """Turn (cross product of consecutive edges) at every corner of every polygon a pore is built
+        on, relative to its value in the undeformed grid: all > 0 means every cell is convex, so each
+        pore's sides see its centroid and the patches cannot fold."""
+        polygons = [self.porous] + ([self.central[None]] if len(self.central) else [])
+
+        def turns(nodes):
+            out = []
+            for poly in polygons:
+                q = nodes[poly]
+                e = jnp.roll(q, -1, axis=1) - q
+                f = jnp.roll(e, -1, axis=1)
+                out.append((e[..., 0] * f[..., 1] - e[..., 1] * f[..., 0]).ravel())
+            return jnp.concatenate(out)
+
+        return turns(self.node_positions(params)) / turns(jnp.asarray(self.nodes))
+
+    def project(self, params, previous) -> dict[str, jnp.ndarray]:
+        """Clip every parameter into its box; if moved corners would make a cell (nearly) non-convex,
+        go only the largest fraction of the step from `previous` (a valid design) that keeps every
+        turn >= MIN_TURN.  A box below a quarter cell keeps cells convex by itself; the paper's
+        0.45-cell box does not, and relies on this."""
+        clipped = {k: jnp.clip(v, *self.bounds()[k]) for k, v in params.items()}
+        if "corners" not in clipped:
+            return clipped
+        step = clipped["corners"] - previous["corners"]
+        ok = lambda t: jnp.min(self.corner_turns({**clipped, "corners": previous["corners"] + t * step})) >= MIN_TURN
+
+        def bisect(_, lo_hi):
+            lo, hi = lo_hi
+            mid = 0.5 * (lo + hi)
+            good = ok(mid)
+            return jnp.where(good, mid, lo), jnp.where(good, hi, mid)
+
+        t = jax.lax.cond(ok(1.0), lambda: 1.0, lambda: jax.lax.fori_loop(0, 30, bisect, (0.0, 1.0))[0])
+        return {**clipped, "corners": previous["corners"] + t * step}
 
     def node_positions(self, params) -> jnp.ndarray:
         nodes = jnp.asarray(self.nodes)
@@ -130,8 +174,14 @@ class FixedDesign:
     def init_params(self) -> dict[str, jnp.ndarray]:
         return {}
 
+    def topology_params(self) -> dict[str, jnp.ndarray]:
+        return {}
+
     def bounds(self) -> dict[str, tuple[float, float]]:
         return {}
+
+    def project(self, params, previous) -> dict[str, jnp.ndarray]:
+        return params
 
     def nets(self, params) -> jnp.ndarray:
         return jnp.asarray(self.spec.nets)
@@ -140,8 +190,5 @@ class FixedDesign:
 def make_design(spec) -> GridDesign | FixedDesign:
     return GridDesign.from_spec(spec) if isinstance(spec, SceneSpec) else FixedDesign(spec)
 
-
-def initial_nets(design) -> np.ndarray:
-    return np.asarray(design.nets(design.init_params()))
 
 

@@ -13,21 +13,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .bspline import DESIGN_CTRL, basis_matrix, element_tables, gauss_legendre_01, refinement_operator
-from .design import initial_nets, make_design
+from .bspline import DESIGN_CTRL, basis_matrix, element_tables, gauss_legendre_01, greville, refinement_operator
+from ..schema import ConfigError, Fidelity
+from .design import make_design
 from .scene import PatchSceneSpec, SceneSpec
-
-
-@dataclass(frozen=True)
-class Fidelity:
-    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
-    ctrl_per_patch: int = 5
-    quad_points: int = 5
-
-    def __post_init__(self):
-        refinement_operator(self.ctrl_per_patch)  # validates 3k + 2
-        if not 1 <= self.quad_points <= 10:
-            raise ValueError(f"fidelity.quad_points must be in [1, 10], got {self.quad_points}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,6 +65,27 @@ class Discretisation:
     def tracked_points(self, points: jnp.ndarray) -> dict[str, jnp.ndarray]:
         """Positions of the tracked material points for control points `points` (X or X + u)."""
         return {k: jnp.asarray(w) @ points[idx] for k, (idx, w) in self.tracked.items()}
+
+    def material_points(self, patches: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, m*m) point indices and basis weights of the material points at parametric coordinates
+        xi (n, 2) of the given patches: positions are einsum("nk,nkd->nd", w, points[idx])."""
+        m = self.fidelity.ctrl_per_patch
+        B0, B1 = basis_matrix(xi[:, 0], m), basis_matrix(xi[:, 1], m)
+        w = np.einsum("ni,nj->nij", B0, B1).reshape(len(xi), m * m)
+        return self.patch_points[np.asarray(patches)], w
+
+    def pore_boundary(self) -> tuple[np.ndarray, np.ndarray]:
+        """Material points on the central pore's edge, counter-clockwise from its first ring node: per
+        side, the design net's Greville abscissae 0, 1/6, 1/2, 5/6 on the inner edge (where the 5 x 5
+        design's control points project onto the curve), 4 M points in all; see material_points."""
+        design = self.design
+        if not len(getattr(design, "central", ())):
+            raise ConfigError(f"scene {self.spec.name} has no central pore")
+        first = 4 * len(design.porous)
+        along = greville(DESIGN_CTRL)[:-1]
+        patches = np.repeat(first + np.arange(len(design.central)), len(along))
+        xi = np.stack([np.tile(along, len(design.central)), np.ones(len(patches))], axis=1)
+        return self.material_points(patches, xi)
 
 
 def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
@@ -136,7 +146,10 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
-    nets = np.einsum("ia,pabd,jb->pijd", R, initial_nets(design), R)  # (P, m, m, 2)
+    # topology from a canonical design (mid radii, corners at rest): which points coincide must not
+    # depend on the initial radii, or a radius at a bound would merge a pore's sides into one point
+    canonical = np.asarray(design.nets(design.topology_params()))
+    nets = np.einsum("ia,pabd,jb->pijd", R, canonical, R)  # (P, m, m, 2)
     P = nets.shape[0]
     flat = nets.reshape(-1, 2)
     size = np.ptp(flat, axis=0).max()
@@ -166,13 +179,13 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     for g in spec.groups:
         idx = np.flatnonzero(_on_segment(points, g.segment, tol))
         if len(idx) == 0:
-            raise ValueError(f"scene {spec.name}: group {g.name} segment {g.segment} holds no control point")
+            raise ConfigError(f"scene {spec.name}: group {g.name} segment {g.segment} holds no control point")
         group_points[g.name] = idx
         for pnt in idx:
             for comp in range(2):
                 dof = 2 * pnt + comp
                 if dof in rows:
-                    raise ValueError(f"scene {spec.name}: point {points[pnt]} belongs to two groups")
+                    raise ConfigError(f"scene {spec.name}: point {points[pnt]} belongs to two groups")
                 row = np.zeros(n_act)
                 row[g.actuation] = g.direction[comp]
                 rows[dof] = row
@@ -182,7 +195,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
         for pin in spec.pinned:
             dist, pnt = tree.query(pin)
             if dist > tol:
-                raise ValueError(f"scene {spec.name}: pinned point {pin} is not a control point")
+                raise ConfigError(f"scene {spec.name}: pinned point {pin} is not a control point")
             fixed.append(pnt)
     else:
         for seg in spec.clamped:
@@ -205,7 +218,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     for name, xy in spec.tracked.items():
         patch, xi = _locate(nets, np.asarray(xy, float), tol)
         if patch < 0:
-            raise ValueError(f"scene {spec.name}: tracked point {name} at {xy} lies in no patch")
+            raise ConfigError(f"scene {spec.name}: tracked point {name} at {xy} lies in no patch")
         w = np.einsum("i,j->ij", basis_matrix(xi[:1], m)[0], basis_matrix(xi[1:], m)[0]).ravel()
         keep = w > 1e-15
         tracked[name] = (patch_points[patch][keep], w[keep])

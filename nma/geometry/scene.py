@@ -1,9 +1,9 @@
 """Declarative scenes: what a structure is, as data.
 
 A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned and tracked points, the
-movable corners and an optional central pore.  A `PatchSceneSpec` is a general multi-patch
-geometry given by its design nets (Cook's membrane is one patch).  Both are validated on
-construction, so a bad scene fails before any work starts.
+movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema.py),
+so a bad scene fails before any work starts.  A `PatchSceneSpec` is a general multi-patch
+geometry given by its design nets (Cook's membrane is one patch).
 """
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+
+from ..schema import SceneConfig, build
 
 POROUS, SOLID, EMPTY = "P", "S", "."
 
@@ -40,36 +42,14 @@ class SceneSpec:
     groups: tuple[Group, ...]
     pinned: tuple[tuple[float, float], ...]
     tracked: Mapping[str, tuple[float, float]]
-    radii_init: float = 0.5
-    radii_bounds: tuple[float, float] = (0.1, 0.9)
-    corner_box: float = 0.0  # half-width of the box corners may move in (0: corners fixed)
-    locked_nodes: tuple[tuple[int, int], ...] = ()
-    central_pore: tuple[tuple[int, int], ...] = ()  # ring of grid nodes (i, j), counter-clockwise
-    central_radii_init: float = 0.8
-    colours: bool = False
-
-    def __post_init__(self):
-        nx, ny = len(self.x_breaks) - 1, len(self.y_breaks) - 1
-        if nx < 1 or ny < 1 or np.any(np.diff(self.x_breaks) <= 0) or np.any(np.diff(self.y_breaks) <= 0):
-            raise ValueError(f"scene {self.name}: x_breaks and y_breaks must be increasing with >= 2 entries")
-        if len(self.cells) != ny or any(len(r) != nx for r in self.cells):
-            raise ValueError(f"scene {self.name}: cells must be {ny} rows of {nx} tokens")
-        bad = {c for r in self.cells for c in r} - {POROUS, SOLID, EMPTY}
-        if bad:
-            raise ValueError(f"scene {self.name}: unknown cell tokens {sorted(bad)}; allowed 'P', 'S', '.'")
-        lo, hi = self.radii_bounds
-        if not 0.0 <= lo < hi <= 1.0:
-            raise ValueError(f"scene.radii_bounds must satisfy 0 <= lo < hi <= 1, got {self.radii_bounds}")
-        if not lo <= self.radii_init <= hi:
-            raise ValueError(f"scene.radii_init must lie in radii_bounds [{lo}, {hi}], got {self.radii_init}")
-        if self.central_pore and not lo <= self.central_radii_init <= hi:
-            raise ValueError(f"scene.central_radii_init must lie in [{lo}, {hi}], got {self.central_radii_init}")
-        if not 0.0 <= self.corner_box < 0.5 * min(np.diff(self.x_breaks).min(), np.diff(self.y_breaks).min()):
-            raise ValueError(f"scene.corner_box must be in [0, half the smallest cell), got {self.corner_box}")
-        n_act = self.n_actuations
-        for g in self.groups:
-            if not 0 <= g.actuation < n_act:
-                raise ValueError(f"scene {self.name}: group {g.name} actuation index {g.actuation} out of range")
+    radii_init: float
+    radii_bounds: tuple[float, float]
+    corner_box: float  # half-width of the box corners may move in (0: corners fixed)
+    locked_nodes: tuple[tuple[int, int], ...]
+    central_pore: tuple[tuple[int, int], ...]  # ring of grid nodes (i, j), counter-clockwise
+    central_radii_init: float
+    colours: bool
+    # built by scene_from_config from a SceneConfig, whose schema holds the defaults and checks
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -98,42 +78,23 @@ class PatchSceneSpec:
         return 1 + max((g.actuation for g in self.groups), default=-1)
 
 
-def _pair(v) -> tuple[float, float]:
-    v = tuple(float(a) for a in v)
-    if len(v) != 2:
-        raise ValueError(f"expected a point [x, y], got {v}")
-    return v
-
-
-def _breaks(cfg: Mapping[str, Any], axis: str) -> tuple[float, ...]:
-    if cfg.get(f"{axis}_breaks") is not None:
-        return tuple(float(b) for b in cfg[f"{axis}_breaks"])
-    n = len(cfg["cells"][0]) if axis == "x" else len(cfg["cells"])
-    return tuple(float(cfg.get("cell_size", 5.0)) * k for k in range(n + 1))
-
-
-def scene_from_config(cfg: Mapping[str, Any]) -> SceneSpec:
-    """Build a SceneSpec from a (Hydra/OmegaConf or plain) mapping; cells are listed top row first."""
-    cfg = dict(cfg)
-    rows = [r.replace(" ", "") for r in (cfg["cells"].split() if isinstance(cfg["cells"], str) else cfg["cells"])]
-    cfg["cells"] = rows
-    groups = tuple(Group(str(g["name"]), (_pair(g["segment"][0]), _pair(g["segment"][1])),
-                         int(g["actuation"]), _pair(g["direction"])) for g in cfg.get("groups", []))
+def scene_from_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneSpec:
+    """Build a SceneSpec from a checked SceneConfig or a mapping (checked here); cells top row first."""
+    if isinstance(cfg, Mapping) and not isinstance(cfg.get("cells", ""), str):
+        cfg = {**cfg, "cells": "\n".join(cfg["cells"])}
+    c: SceneConfig = build(SceneConfig, cfg)
+    pair = lambda v: (float(v[0]), float(v[1]))
+    groups = tuple(Group(g.name, (pair(g.segment[0]), pair(g.segment[1])), g.actuation, pair(g.direction))
+                   for g in c.groups)
     return SceneSpec(
-        name=str(cfg["name"]),
-        x_breaks=_breaks(cfg, "x"), y_breaks=_breaks(cfg, "y"),
-        cells=tuple(reversed(rows)),
-        groups=groups,
-        pinned=tuple(_pair(p) for p in cfg.get("pinned", [])),
-        tracked={str(k): _pair(v) for k, v in dict(cfg.get("tracked", {})).items()},
-        radii_init=float(cfg.get("radii_init", 0.5)),
-        radii_bounds=_pair(cfg.get("radii_bounds", (0.1, 0.9))),
-        corner_box=float(cfg.get("corner_box", 0.0) or 0.0),
-        locked_nodes=tuple(tuple(int(a) for a in n) for n in cfg.get("locked_nodes", []) or []),
-        central_pore=tuple(tuple(int(a) for a in n) for n in cfg.get("central_pore", []) or []),
-        central_radii_init=float(cfg.get("central_radii_init", 0.8)),
-        colours=bool(cfg.get("colours", False)),
-    )
+        name=c.name, x_breaks=tuple(c.breaks("x")), y_breaks=tuple(c.breaks("y")),
+        cells=tuple(reversed(c.rows())), groups=groups,
+        pinned=tuple(pair(p) for p in c.pinned),
+        tracked={k: pair(v) for k, v in c.tracked.items()},
+        radii_init=c.radii_init, radii_bounds=pair(c.radii_bounds), corner_box=c.corner_box,
+        locked_nodes=tuple((int(i), int(j)) for i, j in c.locked_nodes),
+        central_pore=tuple((int(i), int(j)) for i, j in c.central_pore),
+        central_radii_init=c.central_radii_init, colours=c.colours)
 
 
 def bilinear_net(corners: Sequence[Sequence[float]], n: int = 5) -> np.ndarray:

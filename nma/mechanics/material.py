@@ -6,18 +6,13 @@ The material is an array [E, nu] so that it is a differentiable input like any o
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
-
-def check_material(E: float, nu: float) -> None:
-    if not np.isfinite(E) or E <= 0:
-        raise ValueError(f"material.E must be > 0, got {E}")
-    if not -1.0 < nu < 0.5:
-        raise ValueError(f"material.nu must be in (-1, 0.5), got {nu}")
+from ..schema import MaterialConfig
 
 
 def material(E: float, nu: float) -> jnp.ndarray:
-    check_material(float(E), float(nu))
+    """[E, nu] as a float64 array, checked against the schema's ranges (nma/schema.py)."""
+    MaterialConfig(float(E), float(nu))
     return jnp.array([E, nu], dtype=jnp.float64)
 
 

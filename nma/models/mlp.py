@@ -28,8 +28,4 @@ class Encoder(nn.Module):
 
 @MODELS.register("mlp")
 def mlp(hidden: Sequence[int], n_out: int, d_max: float, out_bias: bool = False) -> Encoder:
-    if any(int(w) < 1 for w in hidden):
-        raise ValueError(f"model.hidden widths must be >= 1, got {list(hidden)}")
-    if d_max <= 0:
-        raise ValueError(f"task.d_max must be > 0, got {d_max}")
     return Encoder(tuple(int(w) for w in hidden), int(n_out), float(d_max), bool(out_bias))

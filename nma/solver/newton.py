@@ -14,7 +14,6 @@ the linearised out-of-balance force of the full load and k_ref * L a force scale
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 import jax
@@ -22,45 +21,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.discretise import Discretisation
+from ..schema import NewtonOptions
 from ..mechanics.energy import energy_force_tangents, max_step, quadrature, strain_energy
 from .assembly import element_dofs
 
-RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT = 0, 1, 2, 3
+RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
-               ITERATION_LIMIT: "the iteration limit solver.max_iters was reached"}
-
-
-@dataclass(frozen=True)
-class NewtonOptions:
-    rtol: float = 1e-10           # residual tolerance relative to the full-load force scale
-    atol: float = 1e-13           # noise floor relative to (max element stiffness x structure size)
-    max_iters: int = 200
-    max_step_iters: int = 25      # corrector iterations before a load step counts as failed
-    initial_increment: float = 1.0
-    min_increment: float = 1e-4
-    grow: float = 2.0
-    step_fraction: float = 0.9    # a step may go this fraction of the way to J = 0
-    armijo: float = 1e-4
-    max_backtracks: int = 40
-
-    def __post_init__(self):
-        checks = {"rtol": (0, 1), "atol": (0, 1), "initial_increment": (0, 1), "min_increment": (0, 1),
-                  "step_fraction": (0, 1), "armijo": (0, 0.5)}
-        for name, (lo, hi) in checks.items():
-            v = getattr(self, name)
-            if not lo < v <= hi:
-                raise ValueError(f"solver.{name} must be in ({lo}, {hi}], got {v}")
-        for name in ("max_iters", "max_step_iters", "max_backtracks"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"solver.{name} must be >= 1, got {getattr(self, name)}")
-        if self.grow < 1:
-            raise ValueError(f"solver.grow must be >= 1, got {self.grow}")
-
-    @classmethod
-    def from_config(cls, cfg) -> "NewtonOptions":
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in dict(cfg).items() if k in names})
+               ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
+               NONFINITE_INPUT: "its input (geometry, actuation or material) is not finite; nothing was solved"}
 
 
 class NewtonInfo(NamedTuple):
@@ -234,9 +203,11 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
                       tol, k_ref, rnorm, s.history.at[s.it].set(rnorm))
 
     zero = jnp.zeros(nf, dtype)
+    finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
     init = _State(zero, jnp.asarray(0.0, dtype), zero, jnp.asarray(0.0, dtype),
                   jnp.asarray(opts.initial_increment, dtype), jnp.asarray(True), jnp.asarray(0.0, dtype),
-                  jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(RUNNING),
+                  jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
+                  jnp.where(finite, RUNNING, NONFINITE_INPUT),
                   jnp.asarray(0.0, dtype), jnp.asarray(1.0, dtype), jnp.asarray(jnp.inf, dtype),
                   jnp.full(opts.max_iters, jnp.nan, dtype))
     s = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)

@@ -1,2 +1,2 @@
-from . import rotation, translation  # noqa: F401  (registers the tasks)
+from . import rotation, shape_matching, translation  # noqa: F401  (registers the tasks)
 from .base import Task  # noqa: F401

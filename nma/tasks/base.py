@@ -28,7 +28,7 @@ class Task:
         raise NotImplementedError
 
     def loss(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
-        """L1 distance of the observed points to their targets (REFERENCE.md; the paper says MSE)."""
+        """L1 distance of the observed points to their targets (the authors' code; the paper's text says MSE)."""
         return jnp.mean(jnp.abs(out - self.targets(t)))
 
     def metric(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
@@ -37,8 +37,9 @@ class Task:
     def eval_set(self) -> jnp.ndarray:
         raise NotImplementedError
 
+    outline = False  # True: observe() is a closed curve (figures draw it as one)
 
-def check_range(name: str, value: float, lo: float, hi: float) -> float:
-    if not lo <= value <= hi:
-        raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
-    return float(value)
+    def shown_target(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
+        """The target where a figure draws it next to the observed output."""
+        return self.targets(t)
+

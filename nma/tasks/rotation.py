@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..registry import TASKS
-from .base import Task, check_range
+from ..schema import RotationTask
+from .base import Task
 
 
 class Rotation(Task):
@@ -45,16 +45,12 @@ class Rotation(Task):
 
 
 def _rotation(name):
-    def build(cfg, sim) -> Rotation:
+    def build(cfg: RotationTask, sim) -> Rotation:
         X = sim.reference_points(sim.init_params())
         tracked = sim.disc.tracked_points(X)
-        lo, hi = (float(a) for a in cfg.theta_range)
-        if not -np.pi <= lo < hi <= np.pi:
-            raise ValueError(f"task.theta_range must satisfy -pi <= lo < hi <= pi, got {[lo, hi]}")
         centre = 0.5 * (tracked["left"] + tracked["right"])
-        return Rotation(name, centre, jnp.stack([tracked["left"], tracked["right"]]), (lo, hi),
-                        check_range("task.d_max", cfg.d_max, 1e-6, 5.0),
-                        int(check_range("task.eval_angles", cfg.eval_angles, 2, 1000)))
+        return Rotation(name, centre, jnp.stack([tracked["left"], tracked["right"]]), tuple(cfg.theta_range),
+                        cfg.d_max, cfg.eval_angles)
     return build
 
 

@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..registry import TASKS
-from .base import Task, check_range
+from ..schema import TranslationTask
+from .base import Task
 
 
 class Translation(Task):
@@ -37,9 +38,7 @@ class Translation(Task):
 
 
 @TASKS.register("translation")
-def translation(cfg, sim) -> Translation:
+def translation(cfg: TranslationTask, sim) -> Translation:
     X = sim.reference_points(sim.init_params())
     start = sim.disc.tracked_points(X)["pointer"]
-    return Translation(start, check_range("task.box_half_width", cfg.box_half_width, 0.0, 5.0),
-                       check_range("task.d_max", cfg.d_max, 1e-6, 5.0),
-                       int(check_range("task.eval_grid", cfg.eval_grid, 1, 100)))
+    return Translation(start, cfg.box_half_width, cfg.d_max, cfg.eval_grid)

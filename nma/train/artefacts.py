@@ -55,11 +55,44 @@ def figure_deformed(path: Path, sim, task, evaluation: dict, n: int = 4):
     for ax, i in zip(np.atleast_1d(axes), pick):
         draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"t = {np.round(np.asarray(ts[i]), 2).tolist()}",
                    colour="#d9a38f")
-        tgt = np.asarray(task.targets(ts[i])).reshape(-1, 2)
-        obs = np.asarray(out[i]).reshape(-1, 2)
+        _draw_target(ax, task, out[i], ts[i])
+    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def _draw_target(ax, task, out, t):
+    tgt = np.asarray(task.shown_target(out, t)).reshape(-1, 2)
+    obs = np.asarray(out).reshape(-1, 2)
+    if task.outline:
+        close = lambda a: np.concatenate([a, a[:1]])
+        ax.plot(*close(tgt).T, "--", color="#1f3fbf", lw=1.2, label="target")
+        ax.plot(*close(obs).T, "-", color="#2ca02c", lw=1.2, label="reached")
+    else:
         ax.plot(tgt[:, 0], tgt[:, 1], "x", color="#1f3fbf", ms=7, mew=2, label="target")
         ax.plot(obs[:, 0], obs[:, 1], "o", color="#2ca02c", ms=4, label="reached")
-    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=7)
+
+
+def figure_shapes(path: Path, task, evaluation: dict, n: int = 16):
+    """Held-out targets (dashed, fitted onto the pore by scale, rotation and re-indexing) and the pore
+    the material reached for each, with its error."""
+    X, d, u, out, ts, ok = evaluation["_solution"]
+    k = min(n, len(ts))
+    cols = int(np.ceil(np.sqrt(k)))
+    rows = int(np.ceil(k / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 2.2 * rows + 0.4), squeeze=False)
+    for i, ax in enumerate(axes.ravel()):
+        ax.axis("off")
+        if i >= k:
+            continue
+        _draw_target(ax, task, out[i], ts[i])
+        ax.set_aspect("equal")
+        err = evaluation["per_sample"][i]
+        ax.set_title(f"error {err:.3f}" if ok[i] else "solve failed", fontsize=8)
+    axes[0, 0].legend(loc="lower left", fontsize=6)
+    fig.suptitle(f"{task.name}: held-out targets and reached pores "
+                 f"(mean {task.metric_name} = {evaluation[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)

@@ -1,12 +1,23 @@
-"""Checkpoints written atomically: a crash at any moment leaves the last complete one loadable."""
+"""Checkpoints written atomically: a crash at any moment leaves the last complete one loadable.
+
+Each checkpoint holds the training state and a fingerprint of the config fields that shape the
+parameters and the data (task, scene, model, fidelity, material, optimiser, batch size, seed, ...).
+Resuming compares fingerprints, so a run is never continued under a different config by accident.
+The two newest checkpoints are kept: a corrupt newest one is reported and the previous one used.
+"""
 from __future__ import annotations
 
+import json
+import logging
 import os
 import re
 from pathlib import Path
 
 from flax import serialization
 
+from ..schema import ConfigError
+
+log = logging.getLogger(__name__)
 _NAME = re.compile(r"step_(\d+)\.msgpack$")
 KEEP = 2
 
@@ -34,5 +45,59 @@ def latest(directory: Path):
     return found[-1] if found else None
 
 
-def restore(path: Path, template):
-    return serialization.from_bytes(template, Path(path).read_bytes())
+def load_latest(directory: Path, warn: bool = True):
+    """(path, raw state dict) of the newest checkpoint that reads back, or None if there is none.
+    Unreadable ones (truncated, empty, not msgpack) are reported by path and passed over; if every
+    checkpoint is unreadable that is bad data: ConfigError naming them."""
+    found = sorted(_complete(directory), reverse=True) if directory.exists() else []
+    bad = []
+    for _, path in found:
+        try:
+            raw = serialization.msgpack_restore(path.read_bytes())
+            if not isinstance(raw, dict) or "step" not in raw:
+                raise ValueError("not a training state")
+        except Exception as exc:  # msgpack raises several types for bad bytes
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            bad.append(f"{path} ({reason})")
+            if warn:
+                log.warning("checkpoint %s is unreadable (%s); trying the previous one", path, reason)
+            continue
+        return path, raw
+    if bad:
+        raise ConfigError(f"trainer.resume: no readable checkpoint in {directory}: {'; '.join(bad)}")
+    return None
+
+
+def _flatten(tree, prefix=""):
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            yield from _flatten(v, f"{prefix}.{k}" if prefix else str(k))
+    else:
+        yield prefix, tree
+
+
+def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
+    """Stop with the differing fields named if the checkpoint was written under another config."""
+    if "config" not in raw:
+        log.warning("checkpoint %s records no config; resuming without checking it", path)
+        return
+    old = dict(_flatten(json.loads(raw["config"])))
+    new = dict(_flatten(json.loads(json.dumps(fingerprint))))
+    diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}"
+            for k in sorted(old.keys() | new.keys()) if old.get(k) != new.get(k)]
+    if diff:
+        raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
+                          + "; ".join(diff) + "). Resume with the same settings, start a new run directory, "
+                          "or set trainer.resume=force to continue anyway")
+
+
+def restore(raw: dict, template):
+    """The raw state dict put into the structure of `template`; shapes must match."""
+    import jax
+    import numpy as np
+
+    out = serialization.from_state_dict(template, raw)
+    for (path, a), b in zip(jax.tree_util.tree_flatten_with_path(template)[0], jax.tree_util.tree_leaves(out)):
+        if np.shape(a) != np.shape(b):
+            raise ValueError(f"{jax.tree_util.keystr(path)} has shape {np.shape(b)}, this run needs {np.shape(a)}")
+    return out

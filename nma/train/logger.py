@@ -4,6 +4,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..schema import LoggerConfig
+
 
 class NoLogger:
     def log(self, record: dict, step: int) -> None:
@@ -15,8 +17,6 @@ class NoLogger:
 
 class WandbLogger:
     def __init__(self, run_dir: Path, project: str, mode: str, config: dict, name: str):
-        if mode not in ("offline", "online", "disabled"):
-            raise ValueError(f"logger.mode must be offline, online or disabled, got {mode!r}")
         import wandb
 
         os.environ.setdefault("WANDB_SILENT", "true")
@@ -30,9 +30,7 @@ class WandbLogger:
         self.run.finish()
 
 
-def make_logger(cfg, run_dir: Path, config: dict, name: str, is_root: bool):
+def make_logger(cfg: LoggerConfig, run_dir: Path, config: dict, name: str, is_root: bool):
     if cfg.name == "none" or not is_root:
         return NoLogger()
-    if cfg.name == "wandb":
-        return WandbLogger(run_dir, cfg.get("project", "nma"), cfg.get("mode", "offline"), config, name)
-    raise ValueError(f"logger must be wandb or none, got {cfg.name!r}")
+    return WandbLogger(run_dir, cfg.project, cfg.mode, config, name)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..schema import ConfigError
+
 
 class World:
     """The MPI world, or a single process when not launched under mpiexec."""
@@ -35,6 +37,6 @@ class World:
     def shard(self, n: int) -> slice:
         """This rank's contiguous slice of a global batch of n samples."""
         if n % self.size:
-            raise ValueError(f"trainer.batch_size ({n}) must be a multiple of the number of MPI ranks ({self.size})")
+            raise ConfigError(f"trainer.batch_size ({n}) must be a multiple of the number of MPI ranks ({self.size})")
         k = n // self.size
         return slice(self.rank * k, (self.rank + 1) * k)

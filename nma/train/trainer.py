@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import jax
@@ -24,59 +23,21 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-from ..solver.newton import CONVERGED, SolverError
+from ..schema import ConfigError, OptimConfig, TrainerConfig
+from ..solver.newton import CONVERGED, NONFINITE_INPUT, SolverError
 from . import checkpoint
 from .mpi import World
 
 log = logging.getLogger(__name__)
-GEOMETRY_GROUPS = ("radii", "corners", "pore_radii", "colours")
 
 
-@dataclass(frozen=True)
-class TrainerConfig:
-    steps: int = 100
-    batch_size: int = 8
-    eval_every: int = 25
-    checkpoint_every: int = 25
-    resume: bool = False
-    freeze_geometry: bool = False
-    seed: int = 0
-    fields_samples: int = 9
-    progress: bool = True
-
-    def __post_init__(self):
-        for name in ("steps", "batch_size", "eval_every", "checkpoint_every"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"trainer.{name} must be >= 1, got {getattr(self, name)}")
-        if not 2 <= self.fields_samples <= 64:
-            raise ValueError(f"trainer.fields_samples must be in [2, 64], got {self.fields_samples}")
-        if self.seed < 0:
-            raise ValueError(f"trainer.seed must be >= 0, got {self.seed}")
+class TrainingError(RuntimeError):
+    """Training cannot go on for a stated reason (not a solver failure): exit status 1."""
 
 
-@dataclass(frozen=True)
-class OptimConfig:
-    lr: float = 1e-3
-    lr_scale: dict = field(default_factory=dict)
-    schedule: str = "constant"      # or "cosine": decays to final_fraction * lr over the run
-    final_fraction: float = 0.1
-
-    def __post_init__(self):
-        if not self.lr > 0:
-            raise ValueError(f"optim.lr must be > 0, got {self.lr}")
-        if self.schedule not in ("constant", "cosine"):
-            raise ValueError(f"optim.schedule must be constant or cosine, got {self.schedule!r}")
-        if not 0 <= self.final_fraction <= 1:
-            raise ValueError(f"optim.final_fraction must be in [0, 1], got {self.final_fraction}")
-        for k, v in self.lr_scale.items():
-            if k not in GEOMETRY_GROUPS:
-                raise ValueError(f"optim.lr_scale.{k} is unknown; allowed {list(GEOMETRY_GROUPS)}")
-            if not v >= 0:
-                raise ValueError(f"optim.lr_scale.{k} must be >= 0 (0 freezes the group), got {v}")
-
-
-def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int):
-    """Adam per parameter group; a frozen group (scale 0 or the geometry-frozen baseline) gets no update."""
+def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int):
+    """Adam per parameter group; a frozen group (scale 0 or the geometry-frozen baseline) gets no update.
+    An update whose gradients are not finite is skipped (optax.apply_if_finite counts them)."""
     def lr(scale):
         if ocfg.schedule == "cosine":
             return optax.cosine_decay_schedule(ocfg.lr * scale, steps, alpha=ocfg.final_fraction)
@@ -84,17 +45,18 @@ def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, step
 
     transforms = {"network": optax.adam(lr(1.0))}
     for k in geometry_keys:
-        scale = 0.0 if freeze_geometry else float(ocfg.lr_scale.get(k, 1.0))
+        scale = 0.0 if freeze_geometry else float(getattr(ocfg.lr_scale, k))
         transforms[k] = optax.adam(lr(scale)) if scale > 0 else optax.set_to_zero()
     labels = {"net": "network", "geom": {k: k for k in geometry_keys}}
-    return optax.multi_transform(transforms, labels)
+    return optax.apply_if_finite(optax.multi_transform(transforms, labels), max_nonfinite)
 
 
 class Trainer:
     def __init__(self, task, sim, model, mat, tcfg: TrainerConfig, ocfg: OptimConfig, run_dir: Path,
-                 logger=None, world: World | None = None):
+                 logger=None, world: World | None = None, fingerprint: dict | None = None):
         self.task, self.sim, self.model, self.mat = task, sim, model, mat
-        self.cfg, self.run_dir = tcfg, Path(run_dir)
+        self.cfg, self.ocfg, self.run_dir = tcfg, ocfg, Path(run_dir)
+        self.fingerprint = fingerprint or {}
         self.world = world or World()
         self.logger = logger
         self.shard = self.world.shard(tcfg.batch_size)
@@ -103,9 +65,8 @@ class Trainer:
         t0 = task.sample(init_key, 1)
         geom = sim.init_params()
         strong = lambda tree: jax.tree_util.tree_map(lambda a: jnp.array(a, dtype=a.dtype), tree)
-        self.bounds = sim.disc.design.bounds()
         params = strong({"net": model.init(init_key, task.net_input(t0)), "geom": geom})  # no weak types: one compile
-        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps)
+        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps, tcfg.max_nonfinite_steps)
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
@@ -128,9 +89,9 @@ class Trainer:
 
     def _apply(self, params, opt_state, grads):
         updates, opt_state = self.tx.update(grads, opt_state, params)
-        params = optax.apply_updates(params, updates)
-        geom = {k: jnp.clip(v, *self.bounds[k]) for k, v in params["geom"].items()}  # project to the box
-        return {**params, "geom": geom}, opt_state
+        new = optax.apply_updates(params, updates)
+        geom = self.sim.disc.design.project(new["geom"], params["geom"])  # into the box, cells convex
+        return {**new, "geom": geom}, opt_state
 
     # -- one step, data-parallel ----------------------------------------------------------------------
     def step(self) -> dict:
@@ -139,19 +100,53 @@ class Trainer:
         ts = self.task.sample(jax.random.fold_in(self.data_key, step), self.cfg.batch_size)[self.shard]
         (loss_sum, (ok, _, info)), grads = self._grad(self.state["params"], ts)
         flat, unravel = ravel_pytree(grads)
-        local = np.concatenate([np.asarray(flat), [float(loss_sum), float(np.sum(ok))]])
+        status = np.asarray(info.status)
+        local = np.concatenate([np.asarray(flat), [float(loss_sum), float(np.sum(ok)),
+                                                   float(np.sum(status == NONFINITE_INPUT))]])
         total = self.world.allreduce_sum(local)
-        n_ok = int(round(total[-1]))
+        n_ok, n_nonfinite = int(round(total[-2])), int(round(total[-1]))
+        if n_nonfinite:
+            raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
+                                                     f"are not finite, so nothing could be solved"))
         if n_ok == 0:
             bad = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
             raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[bad], info),
                               f"step {step}: no sample of the batch converged; ")
-        mean_grads = unravel(jnp.asarray(total[:-2] / n_ok))
+        mean_grads = unravel(jnp.asarray(total[:-3] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
         self.state = {"params": params, "opt_state": opt_state, "step": step + 1}
-        return {"step": step + 1, "loss": float(total[-2] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
-                "seconds": time.perf_counter() - t0}
+        rec = {"step": step + 1, "loss": float(total[-3] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
+               "seconds": time.perf_counter() - t0}
+        skipped = int(opt_state.notfinite_count)
+        if skipped:  # optax.apply_if_finite left the parameters as they were
+            rec["skipped_update"] = 1
+            groups = self._nonfinite_groups(mean_grads)
+            log.warning("step %d: loss %s, non-finite gradient in %s: update skipped (%d in a row, %d in all)",
+                        step + 1, rec["loss"], groups or "none", skipped, int(opt_state.total_notfinite))
+            if skipped >= self.cfg.max_nonfinite_steps:
+                raise TrainingError(self._diagnose(step + 1, f"the loss or gradient was not finite for {skipped} "
+                                                             f"steps in a row (in {groups or 'the loss'})"))
+        return rec
 
+    @staticmethod
+    def _nonfinite_groups(tree) -> list[str]:
+        groups = {"network": tree["net"], **tree["geom"]}
+        return [k for k, v in groups.items() if not all(np.all(np.isfinite(np.asarray(a)))
+                                                          for a in jax.tree_util.tree_leaves(v))]
+
+    def _diagnose(self, step: int, what: str) -> str:
+        """Name the likely cause of non-finite training: which parameters blew up, at what rates."""
+        params = self.state["params"]
+        size = {"network": params["net"], **params["geom"]}
+        largest = {k: max((float(np.max(np.abs(np.asarray(a)))) for a in jax.tree_util.tree_leaves(v)),
+                          default=0.0) for k, v in size.items()}
+        big = [f"{k} (max |value| {v:.3g})" for k, v in largest.items() if not np.isfinite(v) or v > 1e6]
+        rates = f"optim.lr = {self.ocfg.lr:g}" + "".join(
+            f", optim.lr_scale.{k} = {getattr(self.ocfg.lr_scale, k):g}" for k in params["geom"])
+        cause = (f"parameters that diverged: {', '.join(big)}; the likely cause is a learning rate far too large"
+                 if big else "no parameter group diverged; the likely cause is the task's loss at these "
+                                 "parameters or a learning rate too large")
+        return f"step {step}: {what}. {cause} ({rates}). Lower optim.lr and start a new run."
     def evaluate(self) -> dict:
         ts = self.task.eval_set()
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
@@ -166,25 +161,35 @@ class Trainer:
         return self.run_dir / "checkpoints"
 
     def _payload(self):
-        return {**self.state, "history": json.dumps(self.history)}
+        return {**self.state, "history": json.dumps(self.history), "config": json.dumps(self.fingerprint)}
 
     def save(self):
         if self.world.is_root:
             checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload())
 
     def try_resume(self) -> bool:
-        found = self.world.bcast(checkpoint.latest(self.checkpoint_dir()) if self.world.is_root else None)
-        if not found:
+        """Continue from the newest readable checkpoint whose config fingerprint matches this run's
+        (or any, with trainer.resume=force); a corrupt newest checkpoint is reported and skipped."""
+        found = checkpoint.load_latest(self.checkpoint_dir(), warn=self.world.is_root)
+        if found is None:
             return False
-        restored = checkpoint.restore(found[1], self._payload())
+        path, raw = found
+        if self.cfg.resume != "force":
+            checkpoint.check_fingerprint(path, raw, self.fingerprint)
+        try:
+            restored = checkpoint.restore(raw, self._payload())
+        except Exception as exc:  # structure or shapes differ: only reachable with resume=force
+            raise ConfigError(f"trainer.resume=force: checkpoint {path} does not fit this run's parameters "
+                              f"({str(exc).splitlines()[0]})") from None
         self.history = json.loads(restored.pop("history"))
+        restored.pop("config")
         step = int(restored.pop("step"))
         self.state = {**jax.tree_util.tree_map(jnp.asarray, restored), "step": step}
-        log.info("resumed from %s at step %d", found[1], self.state["step"])
+        log.info("resumed from %s at step %d", path, self.state["step"])
         return True
 
     def fit(self, on_eval=None) -> dict:
-        if self.cfg.resume:
+        if self.cfg.resume != "false":
             self.try_resume()
         bar = None
         if self.cfg.progress and self.world.is_root:

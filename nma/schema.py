@@ -1,0 +1,508 @@
+"""The one config schema: every group's fields, defaults, types and allowed ranges.
+
+Each config group is a dataclass registered in Hydra's ConfigStore; the YAML files under conf/ only
+select a group option and override values.  A field's allowed range lives next to its default
+(`bounded(default, "(0, 1)")`, `choice(default, options)`), and every dataclass checks its fields on
+construction, so a config is checked the same way whether Hydra composes it or Python builds it:
+
+    Fidelity(5, 1)  ->  ConfigError: fidelity.quad_points must be an integer in [2, 10], got 1
+
+This module imports no JAX: the commands validate a composed config before any heavy import or work.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import MISSING as DC_MISSING
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, Dict, List, Optional, get_args, get_origin, get_type_hints
+
+from omegaconf import MISSING
+
+
+class ConfigError(ValueError):
+    """Bad input (config or data): the message names the field, the value and what is allowed."""
+
+
+# -- field declarations --------------------------------------------------------------------------------
+
+def _parse_range(spec: str) -> tuple[float, float, bool, bool]:
+    lo, hi = (float(s) for s in spec[1:-1].split(","))
+    return lo, hi, spec[0] == "(", spec[-1] == ")"
+
+
+def bounded(default: Any = DC_MISSING, spec: str = "(-inf, inf)", *, factory=None, doc: str = ""):
+    """A number (or a list of numbers, each) in the interval `spec`, e.g. "(0, 1]" or "[1, inf)"."""
+    _parse_range(spec)
+    meta = {"range": spec, "doc": doc}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def choice(default: str, options: tuple[str, ...], doc: str = ""):
+    return field(default=default, metadata={"choices": tuple(options), "doc": doc})
+
+
+def _in_range(x: float, spec: str) -> bool:
+    lo, hi, lo_open, hi_open = _parse_range(spec)
+    if not math.isfinite(x):
+        return False
+    return (x > lo if lo_open else x >= lo) and (x < hi if hi_open else x <= hi)
+
+
+def _kind(tp) -> str:
+    return {int: "an integer", float: "a finite number", bool: "true or false", str: "a string"}.get(tp, str(tp))
+
+
+def _check_type(path: str, value: Any, tp) -> None:
+    origin = get_origin(tp)
+    if origin is None and tp in (int, float, bool, str):
+        ok = (isinstance(value, bool) if tp is bool else
+              isinstance(value, int) and not isinstance(value, bool) if tp is int else
+              isinstance(value, (int, float)) and not isinstance(value, bool) if tp is float else
+              isinstance(value, str))
+        if not ok:
+            raise ConfigError(f"{path} must be {_kind(tp)}, got {value!r}")
+    elif origin in (list, List):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{path} must be a list, got {value!r}")
+        (item,) = get_args(tp)
+        for i, v in enumerate(value):
+            _check_type(f"{path}[{i}]", v, item)
+    elif origin in (dict, Dict):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path} must be a mapping, got {value!r}")
+        _, item = get_args(tp)
+        for k, v in value.items():
+            _check_type(f"{path}.{k}", v, item)
+    elif origin is not None and type(None) in get_args(tp):  # Optional[X]
+        if value is not None:
+            _check_type(path, value, [a for a in get_args(tp) if a is not type(None)][0])
+
+
+def _points(path: str, value: Any, kind: type) -> None:
+    """A list of pairs of numbers (kind int: grid node indices)."""
+    for i, p in enumerate(value):
+        if not isinstance(p, (list, tuple)) or len(p) != 2:
+            raise ConfigError(f"{path}[{i}] must be a pair {'[i, j]' if kind is int else '[x, y]'}, got {p!r}")
+        for v in p:
+            _check_type(f"{path}[{i}]", v, kind)
+            if not math.isfinite(v):
+                raise ConfigError(f"{path}[{i}] must be finite, got {p!r}")
+
+
+def _flat_numbers(value):
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _flat_numbers(v)
+    elif value is not None:
+        yield value
+
+
+class Schema:
+    """Base of every config dataclass: type and range checks of each field, then `check()`."""
+    prefix: ClassVar[str] = ""
+
+    def __post_init__(self):
+        hints = get_type_hints(type(self))
+        for f in fields(self):
+            value = getattr(self, f.name)
+            path = f"{self.prefix}.{f.name}" if self.prefix else f.name
+            if isinstance(value, Schema):
+                continue  # checked on its own construction
+            if isinstance(value, (list, tuple)) and value and isinstance(value[0], Schema):
+                continue
+            if hints.get(f.name) is float and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+                setattr(self, f.name, value)
+            _check_type(path, value, hints.get(f.name, Any))
+            if "range" in f.metadata:
+                spec = f.metadata["range"]
+                for x in _flat_numbers(value):
+                    if not _in_range(float(x), spec):
+                        what = _kind(int if hints.get(f.name) is int else float)
+                        if isinstance(value, (list, tuple)):
+                            what = "a list of numbers, each"
+                        raise ConfigError(f"{path} must be {what} in {spec}, got {value!r}")
+            if "choices" in f.metadata and value not in f.metadata["choices"]:
+                raise ConfigError(f"{path} must be one of {list(f.metadata['choices'])}, got {value!r}")
+        self.check()
+
+    def check(self) -> None:
+        """Rules that join several fields (override in a subclass)."""
+
+    def fail(self, name: str, message: str, value: Any = DC_MISSING):
+        got = "" if value is DC_MISSING else f", got {value!r}"
+        raise ConfigError(f"{self.prefix}.{name} {message}{got}")
+
+
+# -- material, discretisation, solver --------------------------------------------------------------------
+
+@dataclass
+class MaterialConfig(Schema):
+    """Neo-Hookean material: Young's modulus and Poisson's ratio (the paper: E = 0.07, nu = 0.3)."""
+    prefix: ClassVar[str] = "material"
+    E: float = bounded(0.07, "(0, inf)")
+    nu: float = bounded(0.3, "(-1, 0.5)", doc="0.5 is incompressible, which a displacement model cannot represent")
+
+
+@dataclass
+class Fidelity(Schema):
+    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
+    prefix: ClassVar[str] = "fidelity"
+    ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
+    quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
+
+    def check(self):
+        if (self.ctrl_per_patch - 2) % 3:
+            self.fail("ctrl_per_patch", "must be 3k + 2 (5, 8, 11, ...: one knot per design span)",
+                      self.ctrl_per_patch)
+
+
+@dataclass
+class NewtonOptions(Schema):
+    """Newton with adaptive load steps (see nma.solver.newton)."""
+    prefix: ClassVar[str] = "solver"
+    rtol: float = bounded(1e-10, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
+    atol: float = bounded(1e-13, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
+    max_iters: int = bounded(200, "[1, 100000]")
+    max_step_iters: int = bounded(25, "[1, 100000]", doc="corrector iterations before a load step fails")
+    initial_increment: float = bounded(1.0, "(0, 1]")
+    min_increment: float = bounded(1e-4, "(0, 1]")
+    grow: float = bounded(2.0, "[1, 100]")
+    step_fraction: float = bounded(0.9, "(0, 1]", doc="a step may go this fraction of the way to J = 0")
+    armijo: float = bounded(1e-4, "(0, 0.5]")
+    max_backtracks: int = bounded(40, "[1, 1000]")
+
+    def newton(self) -> "NewtonOptions":
+        return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})
+
+
+@dataclass
+class SolverConfig(NewtonOptions):
+    linear: str = "pardiso"   # a linear backend registered in nma.solver.linear (pardiso, superlu, dense)
+
+
+# -- scenes ----------------------------------------------------------------------------------------------
+
+@dataclass
+class GroupConfig(Schema):
+    """Control points on a straight boundary segment moved as a block: u = d[actuation] * direction."""
+    prefix: ClassVar[str] = "scene.groups"
+    name: str = MISSING
+    segment: List[Any] = MISSING           # [[x, y], [x, y]]
+    actuation: int = bounded(MISSING, "[0, 1000]")
+    direction: List[float] = MISSING
+
+    def check(self):
+        _points(f"{self.prefix}.segment", self.segment, float)
+        if len(self.segment) != 2:
+            self.fail("segment", f"of group {self.name} must be two points [[x, y], [x, y]]", self.segment)
+        if len(self.direction) != 2:
+            self.fail("direction", f"of group {self.name} must be [dx, dy]", self.direction)
+
+
+@dataclass
+class SceneConfig(Schema):
+    """A cell grid: tokens P (porous), S (solid), . (empty), listed top row first."""
+    prefix: ClassVar[str] = "scene"
+    name: str = MISSING
+    cells: str = MISSING
+    cell_size: float = bounded(5.0, "(0, inf)")
+    x_breaks: Optional[List[float]] = None     # cell boundaries, overriding cell_size
+    y_breaks: Optional[List[float]] = None
+    groups: List[GroupConfig] = field(default_factory=list)
+    pinned: List[Any] = field(default_factory=list)          # [[x, y], ...]
+    tracked: Dict[str, Any] = field(default_factory=dict)    # name -> [x, y] (a material point)
+    radii_init: float = bounded(0.5, "(0, 1)")
+    radii_bounds: List[float] = bounded(spec="(0, 1)", factory=lambda: [0.1, 0.9],
+                                        doc="0 closes a pore, 1 cuts a cell apart: both degenerate")
+    corner_box: float = bounded(0.0, "[0, inf)", doc="half-width of the box interior nodes move in")
+    locked_nodes: List[Any] = field(default_factory=list)    # grid nodes [[i, j], ...] that never move
+    central_pore: List[Any] = field(default_factory=list)    # ring of grid nodes [[i, j], ...], counter-clockwise
+    central_radii_init: float = bounded(0.8, "(0, 1)")
+    colours: bool = False
+
+    def rows(self) -> list[str]:
+        return [r.replace(" ", "") for r in self.cells.split()]
+
+    def breaks(self, axis: str) -> list[float]:
+        given = self.x_breaks if axis == "x" else self.y_breaks
+        if given is not None:
+            return [float(b) for b in given]
+        rows = self.rows()
+        n = len(rows[0]) if axis == "x" else len(rows)
+        return [self.cell_size * k for k in range(n + 1)]
+
+    @property
+    def n_actuations(self) -> int:
+        return 1 + max((g.actuation for g in self.groups), default=-1)
+
+    def check(self):
+        rows = self.rows()
+        if not rows or len({len(r) for r in rows}) != 1:
+            self.fail("cells", "must be rows of equal length", self.cells)
+        bad = {c for r in rows for c in r} - set("PS.")
+        if bad:
+            self.fail("cells", f"holds unknown cell tokens {sorted(bad)}; allowed 'P', 'S', '.'")
+        for axis, n in (("x", len(rows[0])), ("y", len(rows))):
+            b = self.breaks(axis)
+            if len(b) != n + 1 or any(b1 <= b0 for b0, b1 in zip(b, b[1:])):
+                self.fail(f"{axis}_breaks", f"must be {n + 1} increasing values for {n} cells", b)
+        lo, hi = (self.radii_bounds + [None, None])[:2]
+        if len(self.radii_bounds) != 2 or not lo < hi:
+            self.fail("radii_bounds", "must be [lo, hi] with 0 < lo < hi < 1", self.radii_bounds)
+        for name in ("radii_init",) + (("central_radii_init",) if self.central_pore else ()):
+            if not lo <= getattr(self, name) <= hi:
+                self.fail(name, f"must lie in radii_bounds [{lo}, {hi}]", getattr(self, name))
+        half_cell = 0.5 * min(min(b1 - b0 for b0, b1 in zip(b, b[1:])) for b in (self.breaks("x"), self.breaks("y")))
+        if self.corner_box >= half_cell:
+            # below half a cell, neighbouring nodes can never meet; cells stay convex by the trainer's projection
+            self.fail("corner_box", f"must be < half the smallest cell ({half_cell:g})", self.corner_box)
+        n_act = 1 + max((g.actuation for g in self.groups), default=-1)
+        used = {g.actuation for g in self.groups}
+        if used != set(range(n_act)):
+            self.fail("groups", f"actuation indices must be 0..{n_act - 1} without gaps", sorted(used))
+        _points("scene.pinned", self.pinned, float)
+        _points("scene.tracked", list(self.tracked.values()), float)
+        _points("scene.locked_nodes", self.locked_nodes, int)
+        _points("scene.central_pore", self.central_pore, int)
+
+
+# -- tasks -----------------------------------------------------------------------------------------------
+
+@dataclass
+class TaskConfig(Schema):
+    prefix: ClassVar[str] = "task"
+    name: str = MISSING
+    d_max: float = bounded(4.0, "(0, 5]", doc="actuations are d_max * tanh(network output)")
+    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [30, 30, 30],
+                                doc="the encoder's hidden widths for this task (authors' code: 3 x 30)")
+
+
+@dataclass
+class TranslationTask(TaskConfig):
+    """Move the pointer (centre of the solid square) to any target in +-box_half_width (paper Sec. 4.1)."""
+    name: str = "translation"
+    d_max: float = bounded(4.0, "(0, 5]", doc="about 80% of a cell (the authors' code; the paper says 60%)")
+    box_half_width: float = bounded(1.5, "(0, 5]")
+    eval_grid: int = bounded(5, "[1, 100]", doc="evaluation: pointer error over an eval_grid^2 target grid")
+
+
+@dataclass
+class RotationTask(TaskConfig):
+    """Rotate the centre square's stick by theta about its centre (paper Sec. 4.1, Figs. 5-6)."""
+    name: str = "rotation_single"
+    d_max: float = bounded(4.0, "(0, 5]")
+    theta_range: List[float] = bounded(spec="[-3.141592653589793, 3.141592653589793]",
+                                       factory=lambda: [0.0, 0.7853981633974483])
+    eval_angles: int = bounded(9, "[2, 1000]", doc="evaluation: mean angle error over this many fixed angles")
+
+    def check(self):
+        if len(self.theta_range) != 2 or not self.theta_range[0] < self.theta_range[1]:
+            self.fail("theta_range", "must be [lo, hi] with -pi <= lo < hi <= pi", self.theta_range)
+
+
+@dataclass
+class ShapeMatchingTask(TaskConfig):
+    """Deform the central pore into a target curve from a log-Gaussian process (paper Sec. 4.2)."""
+    name: str = "shape_matching"
+    d_max: float = bounded(3.0, "(0, 5]")
+    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [200, 200])
+    features: int = bounded(100, "[1, 100000]", doc="random Fourier features of the Gaussian process")
+    lengthscale: float = bounded(0.8, "(0, inf)", doc="of the process on the unit circle")
+    dataset_seed: int = bounded(0, "[0, 4294967295]", doc="fixes the features' frequencies and phases")
+    eval_seed: int = bounded(12345, "[0, 4294967295]", doc="draws the held-out targets")
+    eval_targets: int = bounded(64, "[1, 100000]", doc="held-out targets of the evaluation")
+
+
+TASK_SCHEMAS: dict[str, type] = {"translation": TranslationTask, "rotation_single": RotationTask,
+                                 "rotation_double": RotationTask, "shape_matching": ShapeMatchingTask}
+
+
+# -- model, optimiser, trainer, logger ---------------------------------------------------------------------
+
+@dataclass
+class ModelConfig(Schema):
+    """Encoder: MLP with ReLU hidden layers, output d_max * tanh (authors' code: no last bias)."""
+    prefix: ClassVar[str] = "model"
+    name: str = "mlp"         # an encoder registered in nma.models
+    hidden: Optional[List[int]] = bounded(None, "[1, 100000]", doc="null: the task's widths (task.hidden)")
+    out_bias: bool = False
+
+
+GEOMETRY_GROUPS = ("radii", "corners", "pore_radii", "colours")
+
+
+@dataclass
+class LrScale(Schema):
+    """Learning rate of each geometry group as a multiple of the network's; 0 freezes the group."""
+    prefix: ClassVar[str] = "optim.lr_scale"
+    radii: float = bounded(1.0, "[0, inf)")
+    corners: float = bounded(1.0, "[0, inf)")
+    pore_radii: float = bounded(1.0, "[0, inf)")
+    colours: float = bounded(1.0, "[0, inf)")
+
+
+@dataclass
+class OptimConfig(Schema):
+    """Adam per parameter group, optionally with cosine decay to final_fraction * lr."""
+    prefix: ClassVar[str] = "optim"
+    name: str = choice("adam", ("adam",))
+    lr: float = bounded(1e-3, "(0, inf)")
+    lr_scale: LrScale = field(default_factory=LrScale)
+    schedule: str = choice("constant", ("constant", "cosine"))
+    final_fraction: float = bounded(0.1, "[0, 1]")
+
+
+@dataclass
+class TrainerConfig(Schema):
+    prefix: ClassVar[str] = "trainer"
+    steps: int = bounded(100, "[1, 10000000]")
+    batch_size: int = bounded(8, "[1, 100000]")
+    eval_every: int = bounded(25, "[1, 10000000]")
+    checkpoint_every: int = bounded(25, "[1, 10000000]")
+    resume: Any = field(default="false", metadata={"doc": "false | true | force (ignore a changed config)"})
+    freeze_geometry: bool = False          # the paper's baseline: control only, the initial design stays
+    seed: int = bounded(0, "[0, 4294967295]")
+    fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
+    max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
+    progress: bool = True
+
+    def check(self):
+        self.resume = str(self.resume).lower()  # Hydra parses `trainer.resume=true` as a bool
+        if self.resume not in ("false", "true", "force"):
+            self.fail("resume", "must be one of ['false', 'true', 'force']", self.resume)
+
+
+@dataclass
+class LoggerConfig(Schema):
+    prefix: ClassVar[str] = "logger"
+    name: str = choice("wandb", ("wandb", "none"))
+    mode: str = choice("offline", ("offline", "online", "disabled"), doc="offline needs no network")
+    project: str = "nma"
+
+
+# -- the commands' top-level configs -----------------------------------------------------------------------
+
+@dataclass
+class TrainConfig:
+    """`python -m nma.run`: every group of a training run."""
+    task: Any = MISSING                    # a TaskConfig subclass, chosen by the task group
+    scene: SceneConfig = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    material: MaterialConfig = field(default_factory=MaterialConfig)
+
+    def __post_init__(self):
+        if not isinstance(self.task, TaskConfig):
+            raise ConfigError(f"task must be one of {sorted(TASK_SCHEMAS)}")
+        if self.task.name != self.scene.name:
+            raise ConfigError(f"scene={self.scene.name} does not fit task={self.task.name}; "
+                              f"each task runs on its scene of the same name")
+
+
+@dataclass
+class OutputConfig(Schema):
+    prefix: ClassVar[str] = "output"
+    samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the fields and figure")
+    figure: bool = True
+
+
+@dataclass
+class SimulateConfig:
+    """`python -m nma.simulate`: one static solve."""
+    scene: SceneConfig = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    material: MaterialConfig = field(default_factory=MaterialConfig)
+    actuation: Optional[List[float]] = None   # one value per actuation of the scene; null means all zero
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+    def __post_init__(self):
+        if self.actuation is None:
+            return
+        if not all(math.isfinite(a) for a in self.actuation):
+            raise ConfigError(f"actuation must be finite numbers, got {self.actuation}")
+        if len(self.actuation) != self.scene.n_actuations:
+            raise ConfigError(f"actuation must have {self.scene.n_actuations} entries for scene "
+                              f"{self.scene.name}, got {len(self.actuation)}: {self.actuation}")
+
+
+def build(schema: type, values: Any = None):
+    """A checked schema instance from a mapping (or an OmegaConf node); errors name the field."""
+    from omegaconf import OmegaConf
+
+    if isinstance(values, schema):
+        return values
+    try:
+        node = OmegaConf.merge(OmegaConf.structured(schema), values or {})
+        check_keys(node, getattr(schema, "prefix", ""))
+        return OmegaConf.to_object(node)
+    except ConfigError:
+        raise
+    except Exception as exc:  # OmegaConf's type / unknown-key / missing-value errors
+        raise ConfigError(explain(exc, getattr(schema, "prefix", ""))) from None
+
+
+def check_keys(node, path: str = "") -> None:
+    """Reject keys a schema does not declare (Hydra's `+group.key=...` can add them)."""
+    import dataclasses
+
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    if isinstance(node, DictConfig):
+        kind = OmegaConf.get_type(node)
+        if dataclasses.is_dataclass(kind):
+            known = {f.name for f in dataclasses.fields(kind)}
+            for key in node.keys():
+                if key not in known:
+                    raise ConfigError(f"{path + '.' if path else ''}{key} is not a known setting; "
+                                      f"{kind.__name__} has {sorted(known)}")
+        for key in node.keys():
+            if not OmegaConf.is_missing(node, key):
+                check_keys(node[key], f"{path + '.' if path else ''}{key}")
+    elif isinstance(node, ListConfig):
+        for i in range(len(node)):
+            if not OmegaConf.is_missing(node, i):
+                check_keys(node[i], f"{path}[{i}]")
+
+
+def explain(exc: BaseException, prefix: str = "") -> str:
+    """One line for a Hydra or OmegaConf error: the field, the value and what is allowed."""
+    from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, ValidationError
+
+    cause = exc
+    while cause.__cause__ is not None and not getattr(cause, "full_key", None):
+        cause = cause.__cause__
+    key = getattr(cause, "full_key", None) or ""
+    key = f"{prefix}.{key}" if prefix and key and not key.startswith(prefix) else key
+    first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
+    if isinstance(cause, MissingMandatoryValue):
+        return f"{key} is required and has no value"
+    if isinstance(cause, ConfigKeyError) or "not in struct" in first or re.search(r"Key '.*' not in", first):
+        return f"{key} is not a known setting ({first})"
+    if isinstance(cause, ValidationError):
+        m = re.match(r"Value '(.*)' of type '(\w+)' could not be converted to (\w+)", first)
+        if "is not a ListConfig" in first:
+            return f"{key} must be a list such as [1.0, 2.0], got a single {first.split()[3]}"
+        if m:
+            return f"{key} must be {_kind({'Integer': int, 'Float': float, 'Boolean': bool}.get(m[3], m[3]))}, got {m[1]!r}"
+        return f"{key}: {first}"
+    return first if not key else f"{key}: {first}"
+
+
+def register() -> None:
+    """Put the schemas into Hydra's ConfigStore (idempotent)."""
+    from hydra.core.config_store import ConfigStore
+
+    cs = ConfigStore.instance()
+    cs.store(name="train_schema", node=TrainConfig)
+    cs.store(name="simulate_schema", node=SimulateConfig)
+    for name, schema in TASK_SCHEMAS.items():
+        cs.store(group="task", name=f"{name}_schema", node=schema(name=name))
