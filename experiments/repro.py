@@ -36,7 +36,7 @@ def train(name: str, run_dir: Path, overrides: list[str]) -> dict:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("name", choices=["translation", "rotation_single", "rotation_double"])
+    ap.add_argument("name", choices=["translation", "rotation_single", "rotation_double", "shape_matching"])
     ap.add_argument("--baseline-steps", type=int, default=150)
     ap.add_argument("overrides", nargs="*", help="Hydra overrides for both runs")
     args = ap.parse_args()
@@ -52,6 +52,7 @@ def main():
                "baseline": baseline["value"], "joint_over_baseline": ratio,
                "joint_steps": joint["step"], "baseline_steps": baseline["step"],
                "joint_seconds": joint["wall_seconds"], "baseline_seconds": baseline["wall_seconds"],
+               "no_actuation": joint["no_actuation"],
                "total_seconds": total, "failed_solves": [joint["failed_solves"], baseline["failed_solves"]],
                "runs": {"joint": str(out / "joint"), "baseline": str(out / "baseline")}}
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
@@ -59,7 +60,8 @@ def main():
         f"# {args.name}: learned design vs geometry-frozen baseline\n\n"
         f"| run | steps | {name} [{unit}] | wall time [s] |\n|---|---|---|---|\n"
         f"| joint (network + geometry) | {joint['step']} | {joint['value']:.4g} | {joint['wall_seconds']:.0f} |\n"
-        f"| baseline (network only) | {baseline['step']} | {baseline['value']:.4g} | {baseline['wall_seconds']:.0f} |\n\n"
+        f"| baseline (network only) | {baseline['step']} | {baseline['value']:.4g} | {baseline['wall_seconds']:.0f} |\n"
+        f"| no actuation (initial design at rest) | 0 | {joint['no_actuation']:.4g} | 0 |\n\n"
         f"joint / baseline = {ratio:.3f}; total {total / 60:.1f} min\n")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     for m, label in ((joint, "joint"), (baseline, "baseline")):
@@ -68,11 +70,45 @@ def main():
         ax[1].plot(*zip(*ev), "o-", ms=3, label=label)
     ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]", title="final error per target")
     ax[1].set(xlabel="step", ylabel=f"{name} [{unit}]", title="evaluation during training")
+    ax[1].axhline(joint["no_actuation"], color="grey", ls=":", label="no actuation")
     for a in ax:
         a.legend()
     fig.tight_layout()
     fig.savefig(out / "comparison.png", dpi=130)
+    plt.close(fig)
+    if args.name == "shape_matching":
+        figure_shapes_side_by_side(out)
     print((out / "comparison.md").read_text())
+
+
+def figure_shapes_side_by_side(out: Path, n: int = 8):
+    """The same held-out targets reached by the joint design (top) and the frozen one (bottom)."""
+    import h5py
+
+    from nma.tasks.shape_matching import fit_onto
+
+    fig, axes = plt.subplots(2, n, figsize=(1.9 * n, 4.3))
+    for row, run in enumerate(("joint", "baseline")):
+        errors = json.loads((out / run / "metrics.json").read_text())["per_sample"]
+        for i, ax in enumerate(axes[row]):
+            ax.axis("off")
+            path = out / run / "fields" / f"eval_{i:03d}.h5"
+            if not path.exists():
+                continue
+            with h5py.File(path) as f:
+                observed, target = f.attrs["observed"], f.attrs["descriptor"].reshape(-1, 2)
+            shown = np.asarray(fit_onto(observed, target))
+            close = lambda a: np.concatenate([a, a[:1]])
+            ax.plot(*close(shown).T, "--", color="#1f3fbf", lw=1.1, label="target")
+            ax.plot(*close(observed).T, "-", color="#2ca02c", lw=1.1, label="reached")
+            ax.set_aspect("equal")
+            ax.set_title(f"{'joint' if row == 0 else 'frozen'}: {errors[i]:.3f}", fontsize=8)
+    axes[0, 0].legend(loc="lower left", fontsize=6)
+    fig.suptitle("pore shape matching: held-out targets (dashed) and reached pores; error in mean pore radii",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "shapes.png", dpi=130)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -90,6 +90,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                             {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                              "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
+                             "no_actuation": task.rest_metric(sim),
                              "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     log.info("final %s = %.4g %s", task.metric_name, evaluation[task.metric_name], task.metric_unit)
     return evaluation

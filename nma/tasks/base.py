@@ -43,3 +43,11 @@ class Task:
         """The target where a figure draws it next to the observed output."""
         return self.targets(t)
 
+    def rest_metric(self, sim) -> float:
+        """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
+        import jax
+
+        X = sim.reference_points(sim.init_params())
+        out = self.observe(sim, X, jnp.zeros_like(X))
+        return float(jnp.mean(jax.vmap(lambda t: self.metric(out, t))(self.eval_set())))
+

@@ -48,6 +48,17 @@ def shape_distance(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
     return jnp.min(aligned(observed, target)[1])
 
 
+def fit_onto(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
+    """The target scaled, rotated, re-indexed and centred onto the observed shape (for drawing)."""
+    k = jnp.argmin(aligned(observed, target)[1])
+    centre = jnp.mean(observed, axis=0)
+    radius = jnp.mean(jnp.linalg.norm(observed - centre, axis=-1))
+    a, b = normalise(observed), jnp.roll(normalise(target), -k, axis=0)
+    theta = jnp.arctan2(jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), jnp.sum(a * b))
+    c, s = jnp.cos(-theta), jnp.sin(-theta)  # the target turned onto the observed shape
+    return centre + radius * jnp.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], axis=-1)
+
+
 def resample(polyline: jnp.ndarray, n: int) -> jnp.ndarray:
     """n points at equal arc length along a closed polyline (its last point equal to its first),
     starting at its first point."""
@@ -105,16 +116,7 @@ class ShapeMatching(Task):
         return self._eval
 
     def shown_target(self, out, t):
-        """The target as drawn over the observed pore: scaled, rotated, re-indexed and centred onto it."""
-        target = self.targets(t)
-        k = jnp.argmin(aligned(out, target)[1])
-        centre = jnp.mean(out, axis=0)
-        radius = jnp.mean(jnp.linalg.norm(out - centre, axis=-1))
-        a, b = normalise(out), jnp.roll(normalise(target), -k, axis=0)
-        theta = jnp.arctan2(jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), jnp.sum(a * b))
-        c, s = jnp.cos(-theta), jnp.sin(-theta)  # the target turned onto the observed pore
-        back = jnp.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], axis=-1)
-        return centre + radius * back
+        return fit_onto(out, self.targets(t))
 
 
 @TASKS.register("shape_matching")
