@@ -30,7 +30,7 @@ repro-rotation-double:
 	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60
 
 repro-shape-matching: ## pore shape matching: joint vs frozen vs no actuation -> outputs/repro/shape_matching/
-	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 400
+	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250
 
 clean:
 	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro .pytest_cache
