@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: install test test-all bench simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching clean
+.PHONY: install test test-all bench simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 install:            ## install nma and its test dependencies (editable)
 	$(PYTHON) -m pip install -e ".[test]"
@@ -28,6 +28,9 @@ repro-rotation-single:
 
 repro-rotation-double:
 	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60
+
+repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fine-tuning -> outputs/repro/digital_mnist/
+	$(PYTHON) experiments/repro.py digital_mnist
 
 repro-shape-matching: ## pore shape matching: joint vs frozen vs no actuation -> outputs/repro/shape_matching/
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250

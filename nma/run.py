@@ -66,7 +66,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     world = World()
     sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity), s.solver.linear, s.solver.newton())
     task = TASKS.get(s.task.name)(s.task, sim)
-    model = MODELS.get(s.model.name)(hidden=s.model.hidden or s.task.hidden, n_out=sim.n_actuations, d_max=task.d_max,
+    hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
+    model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config, run_dir.name, world.is_root)
     trainer = Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
@@ -82,7 +83,12 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     figures = run_dir / "figures"
     figures.mkdir(exist_ok=True)
     artefacts.figure_designs(figures / "design.png", sim, X_before, X_after)
-    artefacts.figure_deformed(figures / "deformed.png", sim, task, evaluation)
+    geom = trainer.state["params"]["geom"]
+    if getattr(task, "display", None) is not None:  # a colour display: draw what it shows
+        artefacts.figure_display(figures / "deformed.png", task, evaluation, geom)
+        artefacts.figure_colour_map(figures / "colours.png", sim, task, geom)
+    else:
+        artefacts.figure_deformed(figures / "deformed.png", sim, task, evaluation)
     artefacts.figure_curves(figures / "curves.png", task, trainer.history)
     if task.outline:
         artefacts.figure_shapes(figures / "shapes.png", task, evaluation)

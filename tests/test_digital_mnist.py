@@ -1,0 +1,71 @@
+"""Digital MNIST (paper Sec. 4.3): the seven-segment table, the window scores, the data split."""
+import socket
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma.schema import DigitalMNISTTask
+from nma.tasks.digital_mnist import SEVEN_SEGMENT, digital_mnist, mnist_split
+
+
+def test_seven_segment_table():
+    # segments 1 lower-left, 2 upper-left, 3 lower-right, 4 upper-right, 5 bottom, 6 middle, 7 top
+    assert SEVEN_SEGMENT.shape == (10, 7)
+    assert SEVEN_SEGMENT.sum(axis=1).tolist() == [6, 2, 5, 5, 4, 5, 6, 3, 7, 5]
+    assert SEVEN_SEGMENT[1].tolist() == [0, 0, 1, 1, 0, 0, 0] and SEVEN_SEGMENT[8].all()
+    assert SEVEN_SEGMENT[0, 5] == 0 and SEVEN_SEGMENT[7, 6] == 1  # no middle in 0; 7 has a top
+    assert len({tuple(r) for r in SEVEN_SEGMENT}) == 10  # every digit has its own pattern
+
+
+def test_mnist_split_is_stratified_deterministic_and_offline(monkeypatch):
+    def no_network(*args, **kwargs):
+        raise AssertionError("the MNIST digits must load without network access")
+
+    monkeypatch.setattr(socket, "socket", no_network)
+    mnist_split.cache_clear()
+    Xtr, ytr, Xte, yte = mnist_split(0, 400)
+    assert Xtr.shape == (4000, 784) and Xte.shape == (1000, 784)
+    assert np.bincount(ytr).tolist() == [400] * 10 and np.bincount(yte).tolist() == [100] * 10
+    assert 0.0 <= Xtr.min() and Xtr.max() <= 1.0 and Xtr.mean() > 0.05  # real images, scaled
+    mnist_split.cache_clear()
+    again = mnist_split(0, 400)
+    np.testing.assert_array_equal(again[0], Xtr)
+    other = mnist_split(1, 400)
+    assert not np.array_equal(other[0], Xtr)
+    rows = lambda X: {r.tobytes() for r in X}
+    assert not rows(Xtr) & rows(Xte)  # no digit in both
+
+
+@pytest.fixture(scope="module")
+def task(simulator):
+    sim = simulator("digital_mnist", quad_points=3)
+    return sim, digital_mnist(DigitalMNISTTask(eval_digits=8), sim)
+
+
+def test_window_score_reads_the_colour_under_it(task):
+    """A colour field of 1 exactly around one window (0 elsewhere) lights that segment alone."""
+    sim, t = task
+    pos = t.display.positions(sim.reference_points(sim.init_params()))
+    assert pos.shape == (126 * 25 * 25, 2)  # 78,750 colour points
+    for k, (x0, x1, y0, y1) in enumerate(t.display_windows):
+        inside = (pos[:, 0] > x0 - 0.5) & (pos[:, 0] < x1 + 0.5) & (pos[:, 1] > y0 - 0.5) & (pos[:, 1] < y1 + 0.5)
+        scores = np.asarray(t.display.scores_of(pos, inside.astype(float)))
+        assert scores[k] > 1 - 1e-6 and np.delete(scores, k).max() < 1e-6, (k, scores)
+    # grey everywhere (the initial colour nets) reads as grey
+    grey = t.display.scores(sim.reference_points(sim.init_params()), sim.init_params()["colours"])
+    np.testing.assert_allclose(grey, 0.5, atol=1e-12)
+
+
+def test_loss_and_metrics_follow_the_table(task):
+    _, t = task
+    ts = jnp.concatenate([jnp.array([[3.0], [1.0]]), jnp.zeros((2, 784))], axis=1)
+    perfect = jnp.asarray(SEVEN_SEGMENT[[3, 1]])
+    assert float(t.loss(perfect[0], ts[0])) == 0.0
+    assert float(t.loss(1.0 - perfect[0], ts[0])) == 7.0  # every segment wrong
+    assert float(t.loss(jnp.full(7, 0.5), ts[0])) == 3.5
+    off_by_one = perfect[1].at[5].set(0.9)  # the middle lit on a 1
+    assert t.metric(perfect[1], ts[1]) == 1.0 and t.metric(off_by_one, ts[1]) == 0.0
+    extra = t.extra_metrics(jnp.stack([perfect[0], off_by_one]), ts, np.array([True, True]))
+    assert extra["digit_exact_match"] == 0.5 and extra["digit_segment_accuracy"] == pytest.approx(13 / 14)
+    assert t.decode(np.asarray(perfect[0])) == 3 and t.decode(np.asarray(off_by_one)) is None
