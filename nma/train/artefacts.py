@@ -20,7 +20,7 @@ def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: d
             "value": evaluation[task.metric_name], "step": evaluation["step"],
             "failed_solves": evaluation["failed_solves"], "per_sample": evaluation["per_sample"],
             "history": history, **extra,
-            **{k: v for k, v in evaluation.items() if not k.startswith("_") and k != task.metric_name}}
+            **{k: v for k, v in evaluation.items() if not k.startswith("_")}}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(body, indent=1))
     tmp.replace(path)

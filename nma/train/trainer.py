@@ -29,6 +29,7 @@ from . import checkpoint
 from .mpi import World
 
 log = logging.getLogger(__name__)
+OBSERVE_CHUNK = 8  # samples observed at once
 
 
 class TrainingError(RuntimeError):
@@ -88,7 +89,8 @@ class Trainer:
         geom, taken = dict(params["geom"]), []
         for k, v in raw["params"].get("geom", {}).items():
             if k in geom and np.shape(v) == geom[k].shape:
-                geom[k], _ = jnp.asarray(v, geom[k].dtype), taken.append(k)
+                geom[k] = jnp.asarray(v, geom[k].dtype)
+                taken.append(k)
         net = params["net"]
         try:
             net = jax.tree_util.tree_map(jnp.asarray, checkpoint.restore(raw["params"]["net"], net))
@@ -103,7 +105,9 @@ class Trainer:
         X = self.sim.reference_points(params["geom"])
         d = self.model.apply(params["net"], self.task.net_input(ts))
         u, info = self.sim.equilibrium_batch(X, d, self.mat)
-        out = jax.vmap(self.task.observe, in_axes=(None, None, None, 0))(self.sim, params["geom"], X, u)
+        # in chunks: an evaluation set may be large, and an observation (the colour display) is not small
+        observe = lambda ui: self.task.observe(self.sim, params["geom"], X, ui)
+        out = jax.lax.map(observe, u, batch_size=OBSERVE_CHUNK)
         return X, d, u, out, info
 
     def _loss_sum(self, params, ts):
