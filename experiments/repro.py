@@ -26,32 +26,38 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def digital_mnist(out: Path, overrides: list[str]):
     """The paper's three phases in sequence, each starting from the one before."""
-    t0 = time.perf_counter()
-    lookup = train("mnist_lookup", out / "lookup", overrides)
-    fit = train("mnist_fit", out / "fit", [f"task.lookup_run={out / 'lookup'}", f"trainer.init_from={out / 'lookup'}",
-                                           *overrides])
-    tune = train("mnist_finetune", out / "finetune", [f"trainer.init_from={out / 'fit'}", *overrides])
-    total = time.perf_counter() - t0
-    rows = [("1 lookup table (10 actuation vectors + colours)", lookup), ("2 network fitted to the table", fit),
-            ("3 network + colours fine-tuned end to end", tune)]
-    summary = {"experiment": "digital_mnist", "lookup_digits_correct": lookup["lookup_digits_correct"],
-               "digit_exact_match": {"fit": fit["digit_exact_match"], "finetune": tune["digit_exact_match"]},
-               "digit_segment_accuracy": {"lookup": lookup["digit_segment_accuracy"], "fit": fit["digit_segment_accuracy"],
-                                          "finetune": tune["digit_segment_accuracy"]},
-               "seconds": {"lookup": lookup["wall_seconds"], "fit": fit["wall_seconds"],
-                           "finetune": tune["wall_seconds"], "total": total},
-               "runs": {k: str(out / k) for k in ("lookup", "fit", "finetune")}}
+    seconds = {}
+    for phase, extra in (("lookup", []),
+                         ("fit", [f"task.lookup_run={out / 'lookup'}", f"trainer.init_from={out / 'lookup'}"]),
+                         ("finetune", [f"trainer.init_from={out / 'fit'}"])):
+        seconds[phase] = train(f"mnist_{phase}", out / phase, [*extra, *overrides])["wall_seconds"]
+    (out / "seconds.json").write_text(json.dumps(seconds))
+    summarise_digital_mnist(out)
+
+
+def summarise_digital_mnist(out: Path):
+    """comparison.{json,md} from the three phases' metrics.json (python experiments/repro.py
+    digital_mnist --summarise rewrites them without training)."""
+    m = {p: json.loads((out / p / "metrics.json").read_text()) for p in ("lookup", "fit", "finetune")}
+    seconds = json.loads((out / "seconds.json").read_text())
+    summary = {"experiment": "digital_mnist", "lookup_digits_correct": m["lookup"]["value"],
+               "digit_exact_match": {p: m[p]["value"] for p in ("fit", "finetune")},
+               "digit_segment_accuracy": {p: m[p]["digit_segment_accuracy"] for p in m},
+               "seconds": {**seconds, "total": sum(seconds.values())}, "runs": {p: str(out / p) for p in m}}
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
+    labels = {"lookup": "1 lookup table (10 actuation vectors + colours)", "fit": "2 network fitted to the table",
+              "finetune": "3 network + colours fine-tuned end to end"}
     lines = ["# digital MNIST: the three phases", "",
              "| phase | steps | digits of the table shown right | held-out exact match (1,000) | "
              "per-segment accuracy | wall time [s] |", "|---|---|---|---|---|---|"]
-    for label, m in rows:
-        table = f"{m['lookup_digits_correct']}/10" if "lookup_digits_correct" in m else ""
-        exact = f"{m['digit_exact_match']:.3f}" if "digit_exact_match" in m else ""
-        lines.append(f"| {label} | {m['step']} | {table} | {exact} | {m['digit_segment_accuracy']:.3f} | "
-                     f"{m['wall_seconds']:.0f} |")
-    lines += ["", f"total {total / 60:.1f} min; figures: lookup/figures/deformed.png (the ten digits), "
-              "finetune/figures/deformed.png (held-out images and what the material shows), */figures/colours.png"]
+    for p, label in labels.items():
+        table = f"{m[p]['value']}/10" if p == "lookup" else ""
+        exact = "" if p == "lookup" else f"{m[p]['value']:.3f}"
+        lines.append(f"| {label} | {m[p]['step']} | {table} | {exact} | {m[p]['digit_segment_accuracy']:.3f} | "
+                     f"{seconds[p]:.0f} |")
+    lines += ["", f"total {sum(seconds.values()) / 60:.1f} min; figures: lookup/figures/deformed.png (the ten "
+              "digits), finetune/figures/deformed.png (held-out images and what the material shows), "
+              "*/figures/colours.png (the colour field)"]
     (out / "comparison.md").write_text("\n".join(lines) + "\n")
     print((out / "comparison.md").read_text())
 
@@ -71,11 +77,12 @@ def main():
     ap.add_argument("name", choices=["translation", "rotation_single", "rotation_double", "shape_matching",
                                      "digital_mnist"])
     ap.add_argument("--baseline-steps", type=int, default=150)
+    ap.add_argument("--summarise", action="store_true", help="digital_mnist: rewrite the tables only")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides for both runs")
     args = ap.parse_args()
     out = ROOT / "outputs" / "repro" / args.name
     if args.name == "digital_mnist":
-        return digital_mnist(out, args.overrides)
+        return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
     t0 = time.perf_counter()
     joint = train(args.name, out / "joint", args.overrides)
     baseline = train(args.name, out / "baseline",
