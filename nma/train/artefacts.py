@@ -115,7 +115,9 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
     """What the material shows: the colour field (black = 1) on the deformed material, the seven
     display windows (red), for the first n evaluation samples, and their input images."""
     X, d, u, out, ts, ok = evaluation["_solution"]
-    k = min(n, len(ts))
+    labels = np.asarray(ts)[:, 0].astype(int)
+    pick = [int(np.flatnonzero(labels == c)[0]) for c in np.unique(labels)][:n]  # one sample of each digit
+    k = len(pick)
     images = not task.lookup
     cols = (k + 1) // 2
     rows = 2 * (1 + images)
@@ -123,8 +125,8 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
                              gridspec_kw={"height_ratios": ([1, 2.2] if images else [1]) * 2}, squeeze=False)
     for a in axes.ravel():
         a.axis("off")
-    for i in range(k):
-        row, col = divmod(i, cols)
+    for j, i in enumerate(pick):
+        row, col = divmod(j, cols)
         label = int(ts[i][0])
         shown = task.decode(np.asarray(out[i]))
         verdict = "right" if shown == label else f"shows {shown if shown is not None else '?'}"
