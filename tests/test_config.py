@@ -19,7 +19,7 @@ BAD_RUN = [
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
     ("solver=foo", "solver=foo is unknown; choose one of ['dense', 'pardiso', 'superlu']"),
     ("scene=translaton", "scene=translaton is unknown; choose one of"),
-    ("task=juggling", "task=juggling is unknown; choose one of ['rotation_double', 'rotation_single', 'shape_matching', 'translation']"),
+    ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_single', 'shape_matching', 'translation']"),
     ("optim.lr=inf", "optim.lr must be a finite number in (0, inf), got inf"),
     ("optim.lr=nan", "optim.lr must be a finite number in (0, inf), got nan"),
     ("optim.lr_scale.corners=inf", "optim.lr_scale.corners must be a finite number in [0, inf)"),

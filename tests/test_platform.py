@@ -57,9 +57,12 @@ def _flatten(tree, prefix=""):
 
 @pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment"])
 def test_every_config_option_composes_and_validates(group):
+    needs = {"repro_mnist_fit": ["task.lookup_run=outputs/repro/digital_mnist/lookup"]}  # a phase's input
     for option in config.options(group):
-        cfg = compose_cfg(f"{group}={option}")
+        cfg = compose_cfg(f"{group}={option}", *needs.get(option, []))
         validate(cfg)
+    with pytest.raises(ConfigError, match="task.lookup_run must name the lookup phase's run directory"):
+        validate(compose_cfg("experiment=repro_mnist_fit"))
 
 
 @pytest.mark.parametrize("override, message", [
@@ -227,6 +230,7 @@ def test_nonfinite_loss_skips_updates_then_stops(simulator, tmp_path):
     assert_same_params(trainer.state["params"], before, rtol=0)
 
 
+@pytest.mark.slow
 def test_digital_mnist_phases_chain(tmp_path):
     """Lookup table -> network fitted to it (no simulation) -> end-to-end fine-tuning, each phase
     starting from the one before (trainer.init_from)."""
