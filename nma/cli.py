@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from typing import Callable
 
 from .config import CONF_DIR
-from .schema import ConfigError, explain, register  # noqa: F401  (ConfigError for commands)
+from .schema import ConfigError, explain, register
 
 BAD_INPUT, FAILED = 2, 1
 MAX_SWEEP_CHECKS = 256
