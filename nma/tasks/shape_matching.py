@@ -30,17 +30,22 @@ def normalise(points: jnp.ndarray) -> jnp.ndarray:
     return c / jnp.mean(jnp.linalg.norm(c, axis=-1), axis=-1)[..., None, None]
 
 
+def rotate(points: jnp.ndarray, theta) -> jnp.ndarray:
+    """Points (..., N, 2) turned by theta (...) about the origin."""
+    c, s = jnp.cos(theta)[..., None], jnp.sin(theta)[..., None]
+    return jnp.stack([c * points[..., 0] - s * points[..., 1], s * points[..., 0] + c * points[..., 1]], axis=-1)
+
+
 def aligned(observed: jnp.ndarray, target: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """For each cyclic re-indexing k of the normalised target: the normalised observed shape rotated
-    onto it (N, N, 2) and the mean L1 point distance (N,)."""
+    """For each cyclic re-indexing k of the normalised target: the rotation theta_k (N,) that best
+    turns the normalised observed shape onto it, and the mean L1 point distance after it (N,)."""
     a, b = normalise(observed), normalise(target)
     shifts = jax.vmap(lambda k: jnp.roll(b, -k, axis=0))(jnp.arange(b.shape[0]))  # (N, N, 2)
     cross = jnp.sum(a[:, 0] * shifts[..., 1] - a[:, 1] * shifts[..., 0], axis=-1)
     dot = jnp.sum(a[:, 0] * shifts[..., 0] + a[:, 1] * shifts[..., 1], axis=-1)
     theta = jnp.arctan2(cross, dot)  # minimises sum |R a - b_k|^2
-    c, s = jnp.cos(theta)[:, None], jnp.sin(theta)[:, None]
-    rotated = jnp.stack([c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1]], axis=-1)
-    return rotated, jnp.mean(jnp.sum(jnp.abs(rotated - shifts), axis=-1), axis=-1)
+    rotated = rotate(jnp.broadcast_to(a, shifts.shape), theta)
+    return theta, jnp.mean(jnp.sum(jnp.abs(rotated - shifts), axis=-1), axis=-1)
 
 
 def shape_distance(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
@@ -50,13 +55,11 @@ def shape_distance(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
 
 def fit_onto(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
     """The target scaled, rotated, re-indexed and centred onto the observed shape (for drawing)."""
-    k = jnp.argmin(aligned(observed, target)[1])
+    theta, distance = aligned(observed, target)
+    k = jnp.argmin(distance)
     centre = jnp.mean(observed, axis=0)
     radius = jnp.mean(jnp.linalg.norm(observed - centre, axis=-1))
-    a, b = normalise(observed), jnp.roll(normalise(target), -k, axis=0)
-    theta = jnp.arctan2(jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), jnp.sum(a * b))
-    c, s = jnp.cos(-theta), jnp.sin(-theta)  # the target turned onto the observed shape
-    return centre + radius * jnp.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], axis=-1)
+    return centre + radius * rotate(jnp.roll(normalise(target), -k, axis=0), -theta[k])
 
 
 def resample(polyline: jnp.ndarray, n: int) -> jnp.ndarray:
