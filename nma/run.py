@@ -49,29 +49,41 @@ def fingerprint(s: TrainConfig) -> dict:
             "trainer": trainer}
 
 
-def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
-    import jax
+def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None):
+    """The simulator, task, network, logger and trainer of checked settings (JAX set up first)."""
+    from .runtime import configure_jax
 
-    jax.config.update("jax_enable_x64", True)
+    configure_jax()
     from .geometry.discretise import discretise
     from .geometry.scene import scene_from_config
     from .mechanics.material import material
     from .registry import MODELS, TASKS
     from .simulator import Simulator
-    from .train import artefacts
+    from .solver.implicit import available_cores
     from .train.logger import make_logger
     from .train.mpi import World
     from .train.trainer import Trainer
 
-    world = World()
-    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity), s.solver.linear, s.solver.newton())
+    world = world or World()
+    # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
+    workers = s.solver.workers or max(1, available_cores() // world.local_size)
+    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity), s.solver.linear, s.solver.newton(), workers)
     task = TASKS.get(s.task.name)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
                                      out_bias=s.model.out_bias)
-    logger = make_logger(s.logger, run_dir, config, run_dir.name, world.is_root)
-    trainer = Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                      logger, world, fingerprint(s))
+    logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
+    return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
+                   logger, world, fingerprint(s))
+
+
+def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
+    from .train import artefacts
+    from .train.mpi import World
+
+    world = World()
+    trainer = make_trainer(s, run_dir, config, world)
+    sim, task, logger = trainer.sim, trainer.task, trainer.logger
     X_before = sim.reference_points(trainer.state["params"]["geom"])
     log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.n_dofs, world.size,
              s.trainer.batch_size, "frozen" if s.trainer.freeze_geometry else "learned")

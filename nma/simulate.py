@@ -36,9 +36,9 @@ def validate(cfg: DictConfig) -> SimulateConfig:
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:
-    import jax
+    from .runtime import configure_jax
 
-    jax.config.update("jax_enable_x64", True)
+    configure_jax()
     import jax.numpy as jnp
     import numpy as np
 
@@ -53,7 +53,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     spec = scene_from_config(s.scene)
     mat = material(s.material.E, s.material.nu)
     t0 = time.perf_counter()
-    sim = Simulator(discretise(spec, s.fidelity), s.solver.linear, s.solver.newton())
+    sim = Simulator(discretise(spec, s.fidelity), s.solver.linear, s.solver.newton(), s.solver.workers)
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "actuation": np.asarray(d).tolist(),

@@ -19,7 +19,7 @@ from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_from_config
 from .schema import ConfigError, Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
-from .solver.implicit import make_equilibrium
+from .solver.implicit import available_cores, make_equilibrium
 from .solver.linear import make_backend
 from .solver.newton import Equations, NewtonInfo, NewtonOptions, check_converged
 
@@ -38,19 +38,23 @@ class Solution:
 
 
 class Simulator:
-    def __init__(self, disc: Discretisation, linear: str = "pardiso", options: NewtonOptions = NewtonOptions()):
+    def __init__(self, disc: Discretisation, linear: str = "superlu", options: NewtonOptions = NewtonOptions(),
+                 workers: int = 0):
         self.disc = disc
         self.options = options
         self.backend = make_backend(linear, disc)
         self.equations = Equations(disc)
-        self.equilibrium = make_equilibrium(self.equations, self.backend, options)
+        # threads solving a batch's samples at once (a traced backend batches under vmap instead)
+        self.workers = 1 if self.backend.traceable else workers or available_cores()
+        self.equilibrium = make_equilibrium(self.equations, self.backend, options, self.workers)
         self._solve = jax.jit(self._solve_impl)
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None) -> "Simulator":
         solver = build(SolverConfig, solver)
-        return cls(discretise(scene_from_config(scene), build(Fidelity, fidelity)), solver.linear, solver.newton())
+        return cls(discretise(scene_from_config(scene), build(Fidelity, fidelity)), solver.linear, solver.newton(),
+                   solver.workers)
 
     @property
     def n_actuations(self) -> int:
@@ -72,13 +76,10 @@ class Simulator:
         return d
 
     def equilibrium_batch(self, X, ds, mat):
-        """Solves for a batch of actuations (n, n_act) on one geometry. Host backends solve one sample
-        after the other (lax.map), so each Newton loop stops when it converges; a pure-JAX backend
-        runs the batch in lockstep under vmap (parallel on a GPU)."""
-        solve = lambda d: self.equilibrium(X, d, mat)
-        if getattr(self.backend, "parallel_batches", False):
-            return jax.vmap(solve)(ds)
-        return jax.lax.map(solve, ds)
+        """Solves for a batch of actuations (n, n_act) on one geometry. Host backends hand the batch to
+        their thread pool (each sample's Newton stops when it converges); a pure-JAX backend runs the
+        batch in lockstep (parallel on a GPU)."""
+        return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
     def _solve_impl(self, params, d, mat):
         X = self.reference_points(params)

@@ -1,47 +1,211 @@
 """Equilibrium as a differentiable function: Newton forward, adjoint backward (custom_vjp).
 
-At the solution the free residual vanishes, R_f(u_f*; X, d, mat) = 0, so for an output cotangent
-u_bar the adjoint is  lambda = K_ff^-1 u_bar_f  and  (X, d, mat)_bar = -lambda^T dR_f/d(X, d, mat),
-plus the direct term A^T u_bar_D of the points that sit on actuated boundaries.
+At the solution the free residual vanishes, R_f(u_f*; X, d, mat) = 0, so for a cotangent u_bar_f of
+the free displacements the adjoint is  lambda = K_ff^-1 u_bar_f  and
+(X, d, mat)_bar = -lambda^T dR_f/d(X, d, mat); the Dirichlet part of u (A d) is differentiated by JAX.
+
+Two drivers of the same Newton iteration (nma.solver.newton):
+- traced (a traceable backend, `dense`): one `lax.while_loop`; a batch runs in lockstep under vmap.
+- host (SuperLU, PARDISO): the loop runs in Python around jitted halves of an iteration, so the
+  compiled kernels hold no host callback (they go to JAX's persistent compilation cache), and a
+  batch's samples run concurrently on `workers` threads (XLA and the factorisations release the
+  GIL).  Inside a traced program the host driver is one `pure_callback` per batch; each sample keeps
+  its workspace (its last factor) until its adjoint, which then costs back-substitutions only.
+Per-sample results do not depend on the number of threads: samples share nothing but read-only data.
 """
 from __future__ import annotations
 
+import itertools
+import os
+import threading
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+
 import jax
+import jax.numpy as jnp
+import numpy as np
 
 from ..mechanics.energy import force_and_tangents, quadrature
-from .newton import Equations, NewtonOptions, newton_solve
+from .newton import RUNNING, Equations, NewtonOptions, advance, hold, linearise, newton_solve, result, setup
+
+KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
 
 
-def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions):
+def available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def tangents_at(eqs: Equations, X, d, mat, u_free):
+    """Element tangents at a converged state (the adjoint's matrix)."""
+    _, kel = force_and_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, 1.0, eqs.A @ d), mat)
+    return kel
+
+
+def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
+    """(X, d, mat)_bar = -adjoint^T dR_f/d(X, d, mat) at fixed free displacements."""
+    def residual(X, d, mat):
+        return eqs.residual(quadrature(eqs.disc, X), u_free, 1.0, eqs.A @ d, mat)
+
+    return jax.vjp(residual, X, d, mat)[1](-adjoint)
+
+
+class HostNewton:
+    """Newton driven from Python around jitted halves of an iteration; batches on a thread pool."""
+
+    def __init__(self, eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
+        self.eqs, self.backend, self.opts = eqs, backend, opts
+        self.workers = workers or available_cores()
+        # one dispatch and one wait per iteration: each kernel ends with the next linearisation
+        self._start = jax.jit(partial(_start, eqs, opts))
+        self._step = jax.jit(partial(_step, eqs, opts))
+        self._hold = jax.jit(partial(hold, opts))
+        self._tangents = jax.jit(partial(tangents_at, eqs))
+        self._pullback = jax.jit(partial(pullback, eqs))
+        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-newton") if self.workers > 1 else None
+        self._kept: OrderedDict[int, object] = OrderedDict()
+        self._tokens = itertools.count(1)
+        self._lock = threading.Lock()
+
+    def _map(self, fn, items):
+        return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
+
+    # -- one sample
+    def solve(self, X, d, mat, ws):
+        p, s, lin = self._start(X, d, mat)
+        while True:
+            status, next_status, shift = jax.device_get((s.status, lin.state.status, lin.state.shift))
+            if status != RUNNING:  # lin (of a state that ended) is not used
+                break
+            if next_status != RUNNING:
+                s = self._hold(lin)
+                break
+            ws.factorise(lin.kel, float(shift))
+            s, lin = self._step(p, lin, ws.solve(lin.rhs))
+        return result(s)
+
+    def adjoint(self, X, d, mat, u_free, u_bar, ws):
+        lam = ws.adjoint(self._tangents(X, d, mat, u_free), u_bar)
+        return self._pullback(X, d, mat, u_free, jnp.asarray(lam))
+
+    # -- batches (any leading batch shape; what pure_callback's broadcast_all hands over)
+    def forward_batch(self, X, d, mat, keep: bool):
+        lead = np.shape(d)[:-1]
+        Xs, ds, mats = (_samples(a, lead) for a in (X, d, mat))
+
+        def one(i):
+            ws = self.backend.workspace()
+            u, info = self.solve(Xs[i], ds[i], mats[i], ws)
+            token = 0
+            if keep:
+                token = next(self._tokens)
+                with self._lock:
+                    self._kept[token] = ws
+                    while len(self._kept) > KEPT_WORKSPACES:
+                        self.backend.release(self._kept.popitem(last=False)[1])
+            else:
+                self.backend.release(ws)
+            return np.asarray(u), jax.tree_util.tree_map(np.asarray, info), np.int64(token)
+
+        return _stack(self._map(one, range(len(ds))), lead)
+
+    def backward_batch(self, X, d, mat, u_free, u_bar, token):
+        lead = np.shape(d)[:-1]
+        Xs, ds, mats, us, bars, tokens = (_samples(a, lead) for a in (X, d, mat, u_free, u_bar, token))
+        with self._lock:  # one workspace per token, even if a token comes more than once (jacrev)
+            kept = {int(t): self._kept.pop(int(t), None) for t in set(tokens.tolist())}
+        spaces = {t: ws or self.backend.workspace() for t, ws in kept.items()}
+
+        def one(i):
+            return jax.tree_util.tree_map(
+                np.asarray, self.adjoint(Xs[i], ds[i], mats[i], us[i], bars[i], spaces[int(tokens[i])]))
+
+        out = self._map(one, range(len(ds)))
+        for ws in spaces.values():
+            self.backend.release(ws)
+        return _stack(out, lead)
+
+
+def _start(eqs, opts, X, d, mat):
+    p, s = setup(eqs, opts, X, d, mat)
+    return p, s, linearise(eqs, opts, p, s)
+
+
+def _step(eqs, opts, p, lin, du):
+    s = advance(eqs, opts, p, lin, du)
+    return s, linearise(eqs, opts, p, s)
+
+
+def _stack(samples: list, lead: tuple):
+    """Per-sample result trees as one tree with batch dimensions `lead`."""
+    return jax.tree_util.tree_map(lambda *xs: np.stack(xs).reshape(lead + np.shape(xs[0])), *samples)
+
+
+def _samples(a, lead: tuple) -> np.ndarray:
+    """A callback argument with batch dimensions `lead` as a flat list of samples."""
+    a = np.asarray(a)
+    return a.reshape((int(np.prod(lead)),) + a.shape[len(lead):])
+
+
+def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
     """Return equilibrium(X, d, mat) -> (u (n_points, 2), NewtonInfo), differentiable in X, d, mat."""
+    if backend.traceable:
+        solve_free = _traced_solve(eqs, backend, opts)
+    else:
+        solve_free = _host_solve(HostNewton(eqs, backend, opts, workers))
 
-    def forward(X, d, mat):
-        u_free, info = newton_solve(eqs, backend, opts, X, d, mat)
-        return eqs.full(u_free, 1.0, eqs.A @ d), info, u_free
-
-    @jax.custom_vjp
     def equilibrium(X, d, mat):
-        u, info, _ = forward(X, d, mat)
-        return u, info
+        u_free, info = solve_free(X, d, mat)
+        return eqs.full(u_free, 1.0, eqs.A @ d), info
+
+    return equilibrium
+
+
+def _traced_solve(eqs, backend, opts):
+    @jax.custom_vjp
+    def solve_free(X, d, mat):
+        return newton_solve(eqs, backend, opts, X, d, mat)
 
     def fwd(X, d, mat):
-        u, info, u_free = forward(X, d, mat)
-        return (u, info), (X, d, mat, u_free, u)
+        u_free, info = newton_solve(eqs, backend, opts, X, d, mat)
+        return (u_free, info), (X, d, mat, u_free)
 
     def bwd(res, cotangents):
-        X, d, mat, u_free, u = res
-        u_bar = cotangents[0].reshape(-1)
-        quad = quadrature(eqs.disc, X)
-        _, kel = force_and_tangents(eqs.disc, quad, u, mat)
-        adjoint = backend.adjoint_solve(kel, u_bar[eqs.free])
+        X, d, mat, u_free = res
+        adjoint = backend.adjoint_solve(tangents_at(eqs, X, d, mat, u_free), cotangents[0])
+        return pullback(eqs, X, d, mat, u_free, adjoint)
 
-        def residual(X, d, mat):
-            return eqs.residual(quadrature(eqs.disc, X), u_free, 1.0, eqs.A @ d, mat)
+    solve_free.defvjp(fwd, bwd)
+    return solve_free
 
-        _, pullback = jax.vjp(residual, X, d, mat)
-        X_bar, d_bar, mat_bar = pullback(-adjoint)
-        d_bar = d_bar + eqs.A.T @ u_bar[eqs.dirichlet]
-        return X_bar, d_bar, mat_bar
 
-    equilibrium.defvjp(fwd, bwd)
-    return equilibrium
+def _host_solve(newton: HostNewton):
+    eqs, opts = newton.eqs, newton.opts
+
+    def call(X, d, mat, keep):
+        solved = jax.eval_shape(lambda X, d, mat: result(setup(eqs, opts, X, d, mat)[1]), X, d, mat)
+        shapes = (*solved, jax.ShapeDtypeStruct((), jnp.int64))  # u_free, info, workspace token
+        return jax.pure_callback(partial(newton.forward_batch, keep=keep), shapes, X, d, mat,
+                                 vmap_method="broadcast_all")
+
+    @jax.custom_vjp
+    def solve_free(X, d, mat):
+        u_free, info, _ = call(X, d, mat, False)
+        return u_free, info
+
+    def fwd(X, d, mat):
+        u_free, info, token = call(X, d, mat, True)
+        return (u_free, info), (X, d, mat, u_free, token)
+
+    def bwd(res, cotangents):
+        X, d, mat, u_free, token = res
+        out = (jax.ShapeDtypeStruct(X.shape, X.dtype), jax.ShapeDtypeStruct(d.shape, d.dtype),
+               jax.ShapeDtypeStruct(mat.shape, mat.dtype))
+        return jax.pure_callback(newton.backward_batch, out, X, d, mat, u_free, cotangents[0], token,
+                                 vmap_method="broadcast_all")
+
+    solve_free.defvjp(fwd, bwd)
+    return solve_free

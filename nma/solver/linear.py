@@ -1,15 +1,20 @@
 """Linear-solver backends for the Newton systems (K_ff + shift I) x = b, chosen by name in config.
 
-Host backends (PARDISO, SuperLU) run behind `jax.pure_callback`, so one jitted Newton serves every
-backend and batches run sequentially under vmap; the `dense` backend is pure JAX (vmap-parallel on a
-GPU).  The adjoint solve reuses the last factorisation as a preconditioner of iterative refinement
-against the exact Hessian at the solution, and refactorises only if that does not converge.
+Host backends (SuperLU, PARDISO) factorise scipy matrices assembled from the element tangents; each
+sample's Newton solve holds its own `Workspace` (its latest factor), so concurrent samples never
+share a factor and the adjoint of a sample reuses that sample's last factor: it preconditions
+iterative refinement against the exact Hessian at the solution (a few back-substitutions), and a
+refactorisation happens only if that does not converge.  The `dense` backend is pure JAX: its Newton
+loop is traced, and a batch runs in lockstep under vmap (parallel on a GPU).
 """
 from __future__ import annotations
 
+import copy
+import glob
+import os
+import sys
 import threading
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -22,117 +27,164 @@ REFINE_RTOL = 1e-13
 REFINE_STEPS = 8
 
 
+class Workspace:
+    """One sample's linear solver: factorise, then solve with the latest factor."""
+
+    def __init__(self, backend: "HostBackend"):
+        self.backend = backend
+        self.factor = None
+
+    def factorise(self, kel, shift: float = 0.0):
+        A = self.backend.pattern.matrix(np.asarray(kel), shift)
+        self.factor = self.backend.factorise(A, self.factor)
+        self.backend.count("factorisations")
+        return A
+
+    def solve(self, b) -> np.ndarray:
+        return np.asarray(self.factor.solve(np.asarray(b, dtype=np.float64)), dtype=np.float64)
+
+    def adjoint(self, kel, rhs) -> np.ndarray:
+        """Solve K x = rhs with K from kel (the Hessian at the solution): refine from this workspace's
+        factor (of the last Newton iterate), refactorise only if refinement does not converge."""
+        rhs = np.asarray(rhs, dtype=np.float64)
+        scale = np.linalg.norm(rhs)
+        if scale == 0.0:  # e.g. a sample masked out of the loss
+            return np.zeros_like(rhs)
+        A = self.backend.pattern.matrix(np.asarray(kel))
+        if self.factor is not None:
+            x = self.solve(rhs)
+            for k in range(REFINE_STEPS + 1):
+                r = rhs - self.backend.matvec(A, x)
+                if np.linalg.norm(r) <= REFINE_RTOL * scale:
+                    return x
+                if k < REFINE_STEPS:
+                    x = x + self.solve(r)
+        self.factor = self.backend.factorise(A, self.factor)
+        self.backend.count("adjoint_refactorisations")
+        return self.solve(rhs)
+
+
 class HostBackend:
-    """Shared host-side logic: assemble from element tangents, factor, solve, refine."""
+    """Assembly from element tangents into the scene's fixed CSR pattern; workspaces per sample."""
     name = "host"
     upper = False
+    traceable = False
 
     def __init__(self, disc: Discretisation):
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
-        self._factor = None
-        self.stats = {"factorisations": 0, "solves": 0, "adjoint_refactorisations": 0}
+        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0}
+
+    def count(self, what: str) -> None:
+        with self._lock:
+            self.stats[what] += 1
+
+    def workspace(self) -> Workspace:
+        return Workspace(self)
+
+    def release(self, ws: Workspace) -> None:
+        """A workspace no longer needed (its sample's gradient is done, or none will be asked)."""
+        ws.factor = None
 
     # -- to be provided by a concrete backend
-    def _factorise(self, A):  # -> object with .solve(b)
+    def factorise(self, A, previous):  # -> object with .solve(b)
         raise NotImplementedError
 
-    def _matvec(self, A, x):
+    def matvec(self, A, x):
         return A @ x
 
-    # -- host entry points
-    def _solve_host(self, kel, rhs, shift):
-        with self._lock:
-            A = self.pattern.matrix(np.asarray(kel), float(shift))
-            self._factor = self._factorise(A)
-            self.stats["factorisations"] += 1
-            self.stats["solves"] += 1
-            return np.asarray(self._factor.solve(np.asarray(rhs, dtype=np.float64)), dtype=np.float64)
 
-    def _adjoint_host(self, kel, rhs):
-        with self._lock:
-            rhs = np.asarray(rhs, dtype=np.float64)
-            A = self.pattern.matrix(np.asarray(kel))
-            scale = np.linalg.norm(rhs)
-            if scale == 0.0:  # e.g. a sample masked out of the loss
-                return np.zeros_like(rhs)
-            if self._factor is not None:
-                x = self._factor.solve(rhs)
-                for _ in range(REFINE_STEPS):
-                    r = rhs - self._matvec(A, x)
-                    if np.linalg.norm(r) <= REFINE_RTOL * scale:
-                        return x
-                    x = x + self._factor.solve(r)
-                if np.linalg.norm(rhs - self._matvec(A, x)) <= REFINE_RTOL * scale:
-                    return x
-            self._factor = self._factorise(A)
-            self.stats["adjoint_refactorisations"] += 1
-            return np.asarray(self._factor.solve(rhs), dtype=np.float64)
+@LINEAR_SOLVERS.register("superlu")
+class SuperLUBackend(HostBackend):
+    """scipy's SuperLU: portable, no extra dependency, releases the GIL (samples factorise concurrently)."""
+    name = "superlu"
 
-    # -- traced entry points
-    def solve(self, kel, rhs, shift):
-        out = jax.ShapeDtypeStruct(rhs.shape, rhs.dtype)
-        return jax.pure_callback(self._solve_host, out, kel, rhs, shift, vmap_method="sequential")
-
-    def adjoint_solve(self, kel, rhs):
-        out = jax.ShapeDtypeStruct(rhs.shape, rhs.dtype)
-        return jax.pure_callback(self._adjoint_host, out, kel, rhs, vmap_method="sequential")
+    def factorise(self, A, previous):
+        return spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A")
 
 
 class _PardisoFactor:
-    def __init__(self, solver, A):
-        self.solver, self.A = solver, A
+    """A PARDISO handle (symbolic analysis done once) and the matrix of its latest factorisation."""
+
+    def __init__(self, solver):
+        self.solver, self.A = solver, None
 
     def solve(self, b):
         self.solver.set_phase(33)
         return self.solver._call_pardiso(self.A, np.asfortranarray(b)).reshape(b.shape)
 
 
+def _point_pypardiso_at_mkl() -> None:
+    """pypardiso looks for MKL's runtime by a recursive search of the environment (about a second per
+    solver); the MKL wheel puts it in the environment's lib directory, so look there first."""
+    if "PYPARDISO_MKL_RT" in os.environ:
+        return
+    for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
+        found = sorted(glob.glob(os.path.join(sys.prefix, pattern)), key=len)
+        if found:
+            os.environ["PYPARDISO_MKL_RT"] = found[0]
+            return
+
+
 @LINEAR_SOLVERS.register("pardiso")
 class PardisoBackend(HostBackend):
-    """Intel MKL PARDISO, symmetric indefinite (mtype -2): symbolic analysis once per pattern,
-    numerical refactorisation (phase 22) per Newton iteration."""
+    """Intel MKL PARDISO, symmetric indefinite (mtype -2), upper triangle: symbolic analysis once per
+    handle, numerical refactorisation (phase 22) per Newton iteration.  A handle holds one factor, so
+    each workspace has its own handle, taken from a pool and given back when released."""
     name = "pardiso"
     upper = True
 
     def __init__(self, disc: Discretisation):
         super().__init__(disc)
+        _point_pypardiso_at_mkl()
         try:
             import pypardiso
-        except ImportError as exc:  # pragma: no cover - depends on the platform's MKL wheels
-            raise RuntimeError("solver.linear=pardiso needs pypardiso (MKL); use superlu instead") from exc
-        self.solver = pypardiso.PyPardisoSolver(mtype=-2)
-        self._analysed = False
+        except ImportError as exc:  # an optional extra: pip install "nma[pardiso]"
+            raise RuntimeError('solver.linear=pardiso needs pypardiso (Intel MKL): pip install "nma[pardiso]", '
+                               "or use solver.linear=superlu") from exc
+        self._template = pypardiso.PyPardisoSolver(mtype=-2)  # finds and loads MKL (slow): once
+        # one thread per factorisation: a batch's samples run in parallel instead, and idle MKL threads
+        # spin-wait (stealing the core XLA needs) on systems this small (process-wide; numpy uses no MKL)
+        self._template.libmkl.MKL_Set_Num_Threads(1)
+        self._idle: list[_PardisoFactor] = []
 
-    def _factorise(self, A):
+    def _new_solver(self):
+        """A fresh PARDISO handle sharing the template's loaded library."""
+        solver = copy.copy(self._template)
+        solver.pt, solver.iparm, solver.perm = (np.zeros_like(a) for a in (solver.pt, solver.iparm, solver.perm))
+        return solver
+
+    def factorise(self, A, previous):
         A.sort_indices()
         b = np.zeros((A.shape[0], 1))
-        if not self._analysed:
-            self.solver.set_phase(11)
-            self.solver._call_pardiso(A, b)
-            self._analysed = True
-        self.solver.set_phase(22)
-        self.solver._call_pardiso(A, b)
-        return _PardisoFactor(self.solver, A)
+        factor = previous
+        if factor is None:
+            with self._lock:
+                factor = self._idle.pop() if self._idle else None
+            if factor is None:
+                factor = _PardisoFactor(self._new_solver())
+                factor.solver.set_phase(11)
+                factor.solver._call_pardiso(A, b)
+        factor.A = A
+        factor.solver.set_phase(22)
+        factor.solver._call_pardiso(A, b)
+        return factor
 
-    def _matvec(self, A, x):
+    def release(self, ws: Workspace) -> None:
+        if ws.factor is not None:
+            with self._lock:
+                self._idle.append(ws.factor)
+        ws.factor = None
+
+    def matvec(self, A, x):
         return A @ x + A.T @ x - A.diagonal() * x
-
-
-@LINEAR_SOLVERS.register("superlu")
-class SuperLUBackend(HostBackend):
-    """scipy's SuperLU: portable, no extra dependency."""
-    name = "superlu"
-
-    def _factorise(self, A):
-        return spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A")
 
 
 @LINEAR_SOLVERS.register("dense")
 class DenseBackend:
     """Pure JAX: dense assembly and LU solve. Traceable, vmap-parallel; meant for GPUs."""
     name = "dense"
-    parallel_batches = True  # batches run in lockstep under vmap
+    traceable = True  # the Newton loop is traced; batches run in lockstep under vmap
 
     def __init__(self, disc: Discretisation):
         rows, cols = element_entries(disc)

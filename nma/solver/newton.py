@@ -22,7 +22,7 @@ import numpy as np
 
 from ..geometry.discretise import Discretisation
 from ..schema import NewtonOptions
-from ..mechanics.energy import energy_force_tangents, max_step, quadrature, strain_energy
+from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quadrature, strain_energy
 from .assembly import element_dofs
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
@@ -98,22 +98,86 @@ class Equations:
         return jnp.zeros_like(v).at[self.edofs].add(fe)[self.free]
 
 
-def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
-    """Solve for the free displacements at full load. Returns (u_free, NewtonInfo). Traceable."""
-    disc = eqs.disc
-    quad = quadrature(disc, X)
-    u_D = eqs.A @ d
+class Problem(NamedTuple):
+    """What one solve needs besides the state: the design's quadrature, the boundary data, the material."""
+    quad: Quadrature
+    u_D: jnp.ndarray
+    mat: jnp.ndarray
+    size: jnp.ndarray
+
+
+class Linearised(NamedTuple):
+    """A state linearised, its load step closed if it converged, and the right-hand side of its step."""
+    state: _State
+    energy: jnp.ndarray
+    g: jnp.ndarray
+    kel: jnp.ndarray
+    rhs: jnp.ndarray
+
+
+def setup(eqs: Equations, opts: NewtonOptions, X, d, mat) -> tuple[Problem, _State]:
+    """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input)."""
+    quad = quadrature(eqs.disc, X)
+    zero = jnp.zeros(eqs.disc.n_dofs, X.dtype)
+    finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
+    scalar = lambda v: jnp.asarray(v, X.dtype)
+    init = _State(zero, scalar(0.0), zero, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
+                  scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
+                  jnp.where(finite, RUNNING, NONFINITE_INPUT), scalar(0.0), scalar(1.0), scalar(jnp.inf),
+                  jnp.full(opts.max_iters, jnp.nan, X.dtype))
+    return Problem(quad, eqs.A @ d, mat, jnp.max(jnp.ptp(X, axis=0))), init
+
+
+def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Linearised:
+    """First half of an iteration: linearise at the state; a corrector that meets the tolerance closes
+    its load step (and the solve, at full load); the right-hand side of the next step."""
     f_free = eqs.f_ext[eqs.free]
-    size = jnp.max(jnp.ptp(X, axis=0))
-    nf = disc.n_dofs
-    dtype = X.dtype
+    E0, g, kel = eqs.linearise(p.quad, s.u, s.lam, p.u_D, p.mat)
+    rnorm = jnp.linalg.norm(g)
+    first = s.it == 0
+    kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
+    k_ref = jnp.where(first, kdiag, s.k_ref)
+
+    def initial_tolerance(_):  # force scale of the full load, from the first linearisation only
+        f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - f_free) + jnp.linalg.norm(f_free)
+        return opts.rtol * f_ref + opts.atol * kdiag * p.size
+
+    tol = jax.lax.cond(first, initial_tolerance, lambda _: s.tol, None)
+    step_done = (~s.predictor) & (rnorm <= tol)
+    finished = step_done & (s.lam >= 1.0)
+    lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
+    u_conv = jnp.where(step_done, s.u, s.u_conv)
+    dlam = jnp.where(step_done, jnp.minimum(s.dlam * opts.grow, 1.0 - s.lam), s.dlam)
+    predictor = s.predictor | step_done
+    status = jnp.where(finished, CONVERGED, s.status)
+    rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * p.u_D) - dlam * f_free), -g)
+    state = s._replace(u_conv=u_conv, lam_conv=lam_conv, dlam=dlam, predictor=predictor,
+                       steps=s.steps + step_done, status=status, tol=tol, k_ref=k_ref, rnorm=rnorm)
+    return Linearised(state, E0, g, kel, rhs)
+
+
+def _tick(s: _State, opts: NewtonOptions) -> _State:
+    it = s.it + 1
+    status = jnp.where((s.status == RUNNING) & (it >= opts.max_iters), ITERATION_LIMIT, s.status)
+    return s._replace(it=it, status=status, history=s.history.at[s.it].set(s.rnorm))
+
+
+def hold(opts: NewtonOptions, lin: Linearised) -> _State:
+    """Second half of an iteration that takes no step (the solve has ended)."""
+    return _tick(lin.state._replace(predictor=jnp.asarray(False)), opts)
+
+
+def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du) -> _State:
+    """Second half of an iteration: take the step du (the solution of K_ff du = rhs)."""
+    disc = eqs.disc
+    s, E0, g = lin.state, lin.energy, lin.g
+    predictor, dlam = s.predictor, s.dlam
 
     def energy(u, lam):
-        return eqs.potential(quad, u, lam, u_D, mat)
+        return eqs.potential(p.quad, u, lam, p.u_D, p.mat)
 
     def bound(u, lam, du, dlam):
-        du_full = eqs.full(du, dlam, u_D)
-        a = max_step(disc, quad, eqs.full(u, lam, u_D), du_full)
+        a = max_step(disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D))
         return jnp.where(jnp.isnan(a), 0.0, a)
 
     def line_search(u, lam, du, E0, slope, alpha0):
@@ -135,84 +199,56 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
         a, Ea, _ = jax.lax.while_loop(cond, body, (2.0 * alpha0, jnp.inf, 0))
         return a, ok(a, Ea) & (alpha0 > 0)
 
+    finite = jnp.all(jnp.isfinite(du))
+    du = jnp.where(finite, du, jnp.zeros_like(du))
+    # the step may go a fraction of the way to J = 0 (predictor: load moves along)
+    a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, jnp.where(predictor, dlam, 0.0)))
+
+    def predict(_):
+        return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
+
+    def correct(_):
+        # bounded line search on the energy at fixed load
+        slope = jnp.dot(g, du)
+        descent = finite & (slope < 0)
+        a, ok = line_search(s.u, s.lam, du, E0, slope, a0)
+        return a, descent & ok, descent
+
+    a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
+    step_it = jnp.where(predictor, 0, s.step_it + 1)
+    # a failed load step returns to the last converged state with half the increment;
+    # a non-descent direction is retried with a larger diagonal shift first
+    cut = (descent & ~ok) | (step_it >= opts.max_step_iters)
+    moved = ok & ~cut
+    u_new = jnp.where(moved, s.u + a * du, jnp.where(cut, s.u_conv, s.u))
+    lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
+    dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - s.lam_conv)
+    dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
+    shift_new = jnp.where(cut, 0.0, jnp.where(
+        ~descent, jnp.maximum(10.0 * s.shift, 1e-8 * s.k_ref),
+        jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
+    status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
+    return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
+                            step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status), opts)
+
+
+def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
+    return s.u, NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
+
+
+def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
+    """Solve for the free displacements at full load as one traced loop (a traceable linear backend,
+    e.g. dense on a GPU). Returns (u_free, NewtonInfo). Host backends drive the same two halves of an
+    iteration from Python instead (HostNewton), so that no compiled program holds a host callback."""
+    p, init = setup(eqs, opts, X, d, mat)
+
     def body(s: _State) -> _State:
-        E0, g, kel = eqs.linearise(quad, s.u, s.lam, u_D, mat)
-        rnorm = jnp.linalg.norm(g)
-        first = s.it == 0
-        kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
-        k_ref = jnp.where(first, kdiag, s.k_ref)
-        def initial_tolerance(_):  # force scale of the full load, from the first linearisation only
-            f_ref = jnp.linalg.norm(eqs.coupling(kel, u_D) - f_free) + jnp.linalg.norm(f_free)
-            return opts.rtol * f_ref + opts.atol * kdiag * size
+        lin = linearise(eqs, opts, p, s)
+        return jax.lax.cond(lin.state.status == RUNNING,
+                            lambda _: advance(eqs, opts, p, lin, backend.solve(lin.kel, lin.rhs, lin.state.shift)),
+                            lambda _: hold(opts, lin), None)
 
-        tol = jax.lax.cond(first, initial_tolerance, lambda _: s.tol, None)
-
-        # a corrector that meets the tolerance closes its load step
-        step_done = (~s.predictor) & (rnorm <= tol)
-        finished = step_done & (s.lam >= 1.0)
-        lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
-        u_conv = jnp.where(step_done, s.u, s.u_conv)
-        dlam = jnp.where(step_done, jnp.minimum(s.dlam * opts.grow, 1.0 - s.lam), s.dlam)
-        predictor = s.predictor | step_done
-        steps = s.steps + step_done
-        status = jnp.where(finished, CONVERGED, s.status)
-
-        def advance(_):
-            rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * u_D) - dlam * f_free), -g)
-            du = backend.solve(kel, rhs, s.shift)
-            finite = jnp.all(jnp.isfinite(du))
-            du = jnp.where(finite, du, jnp.zeros_like(du))
-
-            # the step may go a fraction of the way to J = 0 (predictor: load moves along)
-            a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, jnp.where(predictor, dlam, 0.0)))
-
-            def predict(_):
-                return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
-
-            def correct(_):
-                # bounded line search on the energy at fixed load
-                slope = jnp.dot(g, du)
-                descent = finite & (slope < 0)
-                a, ok = line_search(s.u, s.lam, du, E0, slope, a0)
-                return a, descent & ok, descent
-
-            a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
-            step_it = jnp.where(predictor, 0, s.step_it + 1)
-            # a failed load step returns to the last converged state with half the increment;
-            # a non-descent direction is retried with a larger diagonal shift first
-            cut = (descent & ~ok) | (step_it >= opts.max_step_iters)
-            moved = ok & ~cut
-            u_new = jnp.where(moved, s.u + a * du, jnp.where(cut, u_conv, s.u))
-            lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, lam_conv, s.lam))
-            dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - lam_conv)
-            dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
-            shift_new = jnp.where(cut, 0.0, jnp.where(
-                ~descent, jnp.maximum(10.0 * s.shift, 1e-8 * k_ref),
-                jnp.where(s.shift > 1e-12 * k_ref, 0.1 * s.shift, 0.0)))
-            new_status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, status)
-            return (u_new, lam_new, dlam_new, cut, shift_new, jnp.where(cut, 0, step_it),
-                    s.cuts + cut, new_status)
-
-        def stay(_):
-            return (s.u, s.lam, dlam, jnp.asarray(False), s.shift, s.step_it, s.cuts, status)
-
-        u, lam, dlam, pred_next, shift, step_it, cuts, status = jax.lax.cond(status == RUNNING, advance, stay, None)
-        it = s.it + 1
-        status = jnp.where((status == RUNNING) & (it >= opts.max_iters), ITERATION_LIMIT, status)
-        return _State(u, lam, u_conv, lam_conv, dlam, pred_next, shift, it, step_it, steps, cuts, status,
-                      tol, k_ref, rnorm, s.history.at[s.it].set(rnorm))
-
-    zero = jnp.zeros(nf, dtype)
-    finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
-    init = _State(zero, jnp.asarray(0.0, dtype), zero, jnp.asarray(0.0, dtype),
-                  jnp.asarray(opts.initial_increment, dtype), jnp.asarray(True), jnp.asarray(0.0, dtype),
-                  jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-                  jnp.where(finite, RUNNING, NONFINITE_INPUT),
-                  jnp.asarray(0.0, dtype), jnp.asarray(1.0, dtype), jnp.asarray(jnp.inf, dtype),
-                  jnp.full(opts.max_iters, jnp.nan, dtype))
-    s = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)
-    info = NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
-    return s.u, info
+    return result(jax.lax.while_loop(lambda s: s.status == RUNNING, body, init))
 
 
 class SolverError(RuntimeError):

@@ -18,6 +18,8 @@ class World:
             self.comm = None
         self.rank = self.comm.Get_rank() if self.comm else 0
         self.size = self.comm.Get_size() if self.comm else 1
+        # ranks sharing this machine (they share its cores)
+        self.local_size = self.comm.Split_type(MPI.COMM_TYPE_SHARED).Get_size() if self.size > 1 else 1
 
     @property
     def is_root(self) -> bool:

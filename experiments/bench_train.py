@@ -1,0 +1,146 @@
+"""Training-step benchmark: what a user waits for, per scene, at the reproductions' settings.
+
+    python experiments/bench_train.py                        # writes outputs/bench/train.{json,md}
+    python experiments/bench_train.py --scenes translation --steps 6
+    python experiments/bench_train.py --init-from translation=outputs/repro/translation/learned
+
+Each scene runs in two fresh processes sharing an empty compilation cache: the first pays the
+compilation (its first step is `first_step_seconds`), the second finds the kernels in JAX's persistent
+cache (`second_process_first_step_seconds`).  The second then times `--steps` further steps twice in
+alternation, once on one thread and once on the default (one per core), so that their ratio comes from
+one process on the same machine state.  Early in training the network's actuations are small and
+solves are cheap; `--init-from scene=<run dir>` starts from a trained run's newest checkpoint instead
+(the steps a long run spends most of its time in).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+EXPERIMENTS = {"translation": "repro_translation", "rotation_double": "repro_rotation_double",
+               "shape_matching": "repro_shape_matching"}
+
+
+def stats(xs):
+    return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
+
+
+def make_trainer(scene: str, workers: int, init_from: str | None):
+    from hydra import compose, initialize_config_dir
+
+    from nma.config import CONF_DIR
+    from nma.run import make_trainer as build_trainer, validate
+    from nma.schema import register
+
+    register()
+    overrides = [f"experiment={EXPERIMENTS[scene]}", "logger=none", "trainer.progress=false",
+                 f"solver.workers={workers}"] + ([f"trainer.init_from={init_from}"] if init_from else [])
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    return build_trainer(validate(cfg), Path(tempfile.mkdtemp(prefix="nma-bench-")))
+
+
+def timed_step(trainer):
+    wall, cpu = time.perf_counter(), time.process_time()
+    trainer.step()
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
+    """One process: time to the end of the first step; then, if `compare`, alternating steps."""
+    t0 = time.perf_counter()
+    from nma.runtime import configure_jax
+
+    configure_jax()
+    trainer = make_trainer(scene, 0, init_from)
+    built = time.perf_counter() - t0
+    first, _ = timed_step(trainer)
+    out = {"build_seconds": built, "first_step_seconds": first, "to_first_step_seconds": built + first,
+           "batch_size": trainer.cfg.batch_size, "dofs": trainer.sim.disc.n_dofs,
+           "workers": trainer.sim.workers}
+    if compare:
+        single = make_trainer(scene, 1, init_from)
+        timed_step(single)  # its own compile
+        single.state = trainer.state
+        runs = {"threads": ([], []), "one_thread": ([], [])}
+        for _ in range(steps):
+            state = trainer.state  # both take the same step from the same state
+            for name, tr in (("one_thread", single), ("threads", trainer)):
+                tr.state = state
+                wall, cpu = timed_step(tr)
+                runs[name][0].append(wall)
+                runs[name][1].append(cpu / wall)
+        for name, (walls, util) in runs.items():
+            out[name] = {"step_seconds": stats(walls), "per_sample_seconds": stats(np.array(walls) / out["batch_size"]),
+                         "cpu_utilisation": float(np.median(util))}
+        out["speedup"] = out["one_thread"]["step_seconds"]["median"] / out["threads"]["step_seconds"]["median"]
+        out["linear_solver_counts"] = dict(trainer.sim.backend.stats)
+    return out
+
+
+def run_scene(scene: str, steps: int, init_from: str | None) -> dict:
+    with tempfile.TemporaryDirectory(prefix="nma-xla-cache-") as cache:
+        env = {**os.environ, "NMA_CACHE_DIR": cache}
+        results = []
+        for compare in (False, True):
+            cmd = [sys.executable, __file__, "--child", scene, "--steps", str(steps)]
+            cmd += ["--init-from", f"{scene}={init_from}"] if init_from else []
+            cmd += ["--compare"] if compare else []
+            proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=ROOT)
+            if proc.returncode:
+                raise RuntimeError(f"{scene}: {proc.stderr[-2000:]}")
+            results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    cold, warm = results
+    return {**warm, "first_step_seconds": cold["first_step_seconds"],
+            "to_first_step_seconds": cold["to_first_step_seconds"],
+            "second_process_first_step_seconds": warm["first_step_seconds"],
+            "second_process_to_first_step_seconds": warm["to_first_step_seconds"],
+            "init_from": init_from or "initial network"}
+
+
+def table(results: dict) -> str:
+    rows = ["| scene | dofs | batch | step s (min / median), threads | one thread | speedup | CPU use | "
+            "first step s | 2nd process first step s |", "|---|---|---|---|---|---|---|---|---|"]
+    for scene, r in results.items():
+        t, o = r["threads"]["step_seconds"], r["one_thread"]["step_seconds"]
+        rows.append(f"| {scene} | {r['dofs']} | {r['batch_size']} | {t['min']:.3f} / {t['median']:.3f} "
+                    f"({r['workers']} threads) | {o['min']:.3f} / {o['median']:.3f} | {r['speedup']:.2f}x | "
+                    f"{r['threads']['cpu_utilisation']:.2f} cores | {r['first_step_seconds']:.2f} | "
+                    f"{r['second_process_first_step_seconds']:.2f} |")
+    return "\n".join(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="+", default=list(EXPERIMENTS), choices=list(EXPERIMENTS))
+    ap.add_argument("--steps", type=int, default=8, help="timed steps per variant")
+    ap.add_argument("--init-from", nargs="*", default=[], metavar="SCENE=RUN_DIR")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "bench" / "train.json")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--compare", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    starts = dict(item.split("=", 1) for item in args.init_from)
+    if args.child:
+        print(json.dumps(child(args.child, args.steps, starts.get(args.child), args.compare)))
+        return
+    results = {}
+    for scene in args.scenes:
+        results[scene] = run_scene(scene, args.steps, starts.get(scene))
+        print(f"{scene}: {json.dumps(results[scene])}", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2))
+    args.out.with_suffix(".md").write_text(table(results) + "\n")
+    print(table(results))
+
+
+if __name__ == "__main__":
+    main()
