@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: install test test-all bench simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: install test test-all bench bench-train simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 install:            ## install nma and its test dependencies (editable)
 	$(PYTHON) -m pip install -e ".[test]"
@@ -13,6 +13,9 @@ test-all:           ## every test, the slow physics checks included
 
 bench:              ## solver speed per scene and the fidelity sweep -> outputs/bench/solver.json
 	$(PYTHON) experiments/bench_solver.py
+
+bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
+	$(PYTHON) experiments/bench_train.py
 
 simulate:           ## one forward solve of the translation scene
 	$(PYTHON) -m nma.simulate scene=translation actuation=[1.0,-0.5]

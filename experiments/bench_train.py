@@ -72,6 +72,8 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
         timed_step(single)  # its own compile
         single.state = trainer.state
         runs = {"threads": ([], []), "one_thread": ([], [])}
+        clocks = {"threads": trainer.sim.backend.clock.seconds, "one_thread": single.sim.backend.clock.seconds}
+        before = {name: dict(c) for name, c in clocks.items()}
         for _ in range(steps):
             state = trainer.state  # both take the same step from the same state
             for name, tr in (("one_thread", single), ("threads", trainer)):
@@ -80,8 +82,12 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
                 runs[name][0].append(wall)
                 runs[name][1].append(cpu / wall)
         for name, (walls, util) in runs.items():
+            spent = {k: (v - before[name].get(k, 0.0)) / steps for k, v in clocks[name].items()}
+            outside = np.mean(walls) - spent.pop("forward_batches", 0.0) - spent.pop("backward_batches", 0.0)
             out[name] = {"step_seconds": stats(walls), "per_sample_seconds": stats(np.array(walls) / out["batch_size"]),
-                         "cpu_utilisation": float(np.median(util))}
+                         "cpu_utilisation": float(np.median(util)),
+                         # per step; solver phases summed over threads, the rest is wall time outside the solver
+                         "where_the_time_goes": {**spent, "outside_the_solver": float(outside)}}
         out["speedup"] = out["one_thread"]["step_seconds"]["median"] / out["threads"]["step_seconds"]["median"]
         out["linear_solver_counts"] = dict(trainer.sim.backend.stats)
     return out
@@ -105,6 +111,21 @@ def run_scene(scene: str, steps: int, init_from: str | None) -> dict:
             "second_process_first_step_seconds": warm["first_step_seconds"],
             "second_process_to_first_step_seconds": warm["to_first_step_seconds"],
             "init_from": init_from or "initial network"}
+
+
+PHASES = {"newton_kernels": "Newton kernels (tangents, line search, step bound)", "assembly": "assembly",
+          "factorisation": "factorisation", "back_substitution": "back-substitution",
+          "adjoint_kernels": "adjoint kernels (tangents, pullback)", "adjoint_solve": "adjoint solve (refinement)",
+          "outside_the_solver": "outside the solver (network, design map, loss, optimiser)"}
+
+
+def breakdown(results: dict) -> str:
+    scenes = list(results)
+    rows = ["| seconds per step, one thread | " + " | ".join(scenes) + " |", "|---" * (len(scenes) + 1) + "|"]
+    for key, label in PHASES.items():
+        rows.append(f"| {label} | " + " | ".join(
+            f"{results[s]['one_thread']['where_the_time_goes'].get(key, 0.0):.3f}" for s in scenes) + " |")
+    return "\n".join(rows)
 
 
 def table(results: dict) -> str:
@@ -138,8 +159,9 @@ def main() -> None:
         print(f"{scene}: {json.dumps(results[scene])}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
-    args.out.with_suffix(".md").write_text(table(results) + "\n")
-    print(table(results))
+    report = table(results) + "\n\n" + breakdown(results) + "\n"
+    args.out.with_suffix(".md").write_text(report)
+    print(report)
 
 
 if __name__ == "__main__":

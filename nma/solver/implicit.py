@@ -75,24 +75,41 @@ class HostNewton:
 
     # -- one sample
     def solve(self, X, d, mat, ws):
-        p, s, lin = self._start(X, d, mat)
+        kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
+        with kernels():
+            p, s, lin = self._start(X, d, mat)
         while True:
-            status, next_status, shift = jax.device_get((s.status, lin.state.status, lin.state.shift))
+            with kernels():
+                status, next_status, shift = jax.device_get((s.status, lin.state.status, lin.state.shift))
             if status != RUNNING:  # lin (of a state that ended) is not used
                 break
             if next_status != RUNNING:
                 s = self._hold(lin)
                 break
             ws.factorise(lin.kel, float(shift))
-            s, lin = self._step(p, lin, ws.solve(lin.rhs))
+            du = ws.solve(lin.rhs)
+            with kernels():
+                s, lin = self._step(p, lin, du)
         return result(s)
 
     def adjoint(self, X, d, mat, u_free, u_bar, ws):
-        lam = ws.adjoint(self._tangents(X, d, mat, u_free), u_bar)
-        return self._pullback(X, d, mat, u_free, jnp.asarray(lam))
+        kernels = partial(self.backend.clock.time, "adjoint_kernels")
+        with kernels():
+            kel = jax.block_until_ready(self._tangents(X, d, mat, u_free))
+        lam = ws.adjoint(kel, u_bar)
+        with kernels():
+            return jax.block_until_ready(self._pullback(X, d, mat, u_free, jnp.asarray(lam)))
 
     # -- batches (any leading batch shape; what pure_callback's broadcast_all hands over)
     def forward_batch(self, X, d, mat, keep: bool):
+        with self.backend.clock.time("forward_batches"):
+            return self._forward_batch(X, d, mat, keep)
+
+    def backward_batch(self, *args):
+        with self.backend.clock.time("backward_batches"):
+            return self._backward_batch(*args)
+
+    def _forward_batch(self, X, d, mat, keep: bool):
         lead = np.shape(d)[:-1]
         Xs, ds, mats = (_samples(a, lead) for a in (X, d, mat))
 
@@ -112,7 +129,7 @@ class HostNewton:
 
         return _stack(self._map(one, range(len(ds))), lead)
 
-    def backward_batch(self, X, d, mat, u_free, u_bar, token):
+    def _backward_batch(self, X, d, mat, u_free, u_bar, token):
         lead = np.shape(d)[:-1]
         Xs, ds, mats, us, bars, tokens = (_samples(a, lead) for a in (X, d, mat, u_free, u_bar, token))
         with self._lock:  # one workspace per token, even if a token comes more than once (jacrev)

@@ -14,6 +14,9 @@ import glob
 import os
 import sys
 import threading
+import time
+from collections import defaultdict
+from contextlib import contextmanager
 
 import jax.numpy as jnp
 import numpy as np
@@ -27,6 +30,23 @@ REFINE_RTOL = 1e-13
 REFINE_STEPS = 8
 
 
+class Stopwatch:
+    """Seconds spent per phase of the solver, summed over threads: where a training step's time goes."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+        self._lock = threading.Lock()
+
+    @contextmanager
+    def time(self, phase: str):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            with self._lock:
+                self.seconds[phase] += time.perf_counter() - start
+
+
 class Workspace:
     """One sample's linear solver: factorise, then solve with the latest factor."""
 
@@ -35,15 +55,23 @@ class Workspace:
         self.factor = None
 
     def factorise(self, kel, shift: float = 0.0):
-        A = self.backend.pattern.matrix(np.asarray(kel), shift)
-        self.factor = self.backend.factorise(A, self.factor)
+        clock = self.backend.clock
+        with clock.time("assembly"):
+            A = self.backend.pattern.matrix(np.asarray(kel), shift)
+        with clock.time("factorisation"):
+            self.factor = self.backend.factorise(A, self.factor)
         self.backend.count("factorisations")
         return A
 
     def solve(self, b) -> np.ndarray:
-        return np.asarray(self.factor.solve(np.asarray(b, dtype=np.float64)), dtype=np.float64)
+        with self.backend.clock.time("back_substitution"):
+            return np.asarray(self.factor.solve(np.asarray(b, dtype=np.float64)), dtype=np.float64)
 
     def adjoint(self, kel, rhs) -> np.ndarray:
+        with self.backend.clock.time("adjoint_solve"):
+            return self._adjoint(kel, rhs)
+
+    def _adjoint(self, kel, rhs) -> np.ndarray:
         """Solve K x = rhs with K from kel (the Hessian at the solution): refine from this workspace's
         factor (of the last Newton iterate), refactorise only if refinement does not converge."""
         rhs = np.asarray(rhs, dtype=np.float64)
@@ -74,6 +102,7 @@ class HostBackend:
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
         self.stats = {"factorisations": 0, "adjoint_refactorisations": 0}
+        self.clock = Stopwatch()
 
     def count(self, what: str) -> None:
         with self._lock:
