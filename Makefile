@@ -1,6 +1,9 @@
 PYTHON ?= python3
 
-.PHONY: install test test-all bench bench-train simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-train simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+
+help:               ## list the targets (the default: plain `make` installs nothing)
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
 
 install:            ## install nma and its test dependencies (editable)
 	$(PYTHON) -m pip install -e ".[test]"
@@ -26,10 +29,10 @@ run:                ## train the default experiment (translation, 100 steps)
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
 	$(PYTHON) experiments/repro.py translation --baseline-steps 80
 
-repro-rotation-single:
+repro-rotation-single: ## paper rotation, single stick: joint vs frozen -> outputs/repro/rotation_single/
 	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60
 
-repro-rotation-double:
+repro-rotation-double: ## paper rotation, double: joint vs frozen -> outputs/repro/rotation_double/
 	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60
 
 repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fine-tuning -> outputs/repro/digital_mnist/
@@ -38,6 +41,6 @@ repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fin
 repro-shape-matching: ## pore shape matching: joint vs frozen vs no actuation -> outputs/repro/shape_matching/
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250
 
-clean:
+clean:              ## remove outputs/ results and __pycache__
 	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro .pytest_cache
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

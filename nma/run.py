@@ -87,7 +87,11 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     X_before = sim.reference_points(trainer.state["params"]["geom"])
     log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.n_dofs, world.size,
              s.trainer.batch_size, "frozen" if s.trainer.freeze_geometry else "learned")
-    evaluation = trainer.fit()
+    on_eval = None
+    if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
+        on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
+            run_dir / "fields" / f"step_{ev['step']:07d}", sim, ev, s.trainer.fields_samples)
+    evaluation = trainer.fit(on_eval)
     logger.finish()
     if not world.is_root:
         return {}
@@ -104,7 +108,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     artefacts.figure_curves(figures / "curves.png", task, trainer.history)
     if task.outline:
         artefacts.figure_shapes(figures / "shapes.png", task, evaluation)
-    artefacts.write_eval_fields(run_dir, sim, evaluation, s.trainer.fields_samples)
+    if s.trainer.fields == "final":
+        artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
     artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                             {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                              "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,

@@ -8,6 +8,7 @@ step's thin outer program) are compiled per process; JAX does not cache those.
 """
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -22,6 +23,8 @@ def cache_dir() -> Path | None:
 def configure_jax() -> None:
     import jax
 
+    # JAX probes for a TPU and logs its absence at INFO on every start: not news on a CPU or GPU
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     jax.config.update("jax_enable_x64", True)
     path = cache_dir()
     if path is not None:

@@ -402,6 +402,8 @@ class TrainerConfig(Schema):
     resume: Any = field(default="false", metadata={"doc": "false | true | force (ignore a changed config)"})
     freeze_geometry: bool = False          # the paper's baseline: control only, the initial design stays
     seed: int = bounded(0, "[0, 4294967295]")
+    fields: str = choice("final", ("final", "all", "none"),
+                         doc="HDF5 fields of the evaluation samples: of the final evaluation, of every one, or none")
     fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
     max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
     init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)

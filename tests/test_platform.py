@@ -55,7 +55,8 @@ def _flatten(tree, prefix=""):
         yield prefix, np.asarray(tree)
 
 
-@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment"])
+@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment",
+                                   "debug"])
 def test_every_config_option_composes_and_validates(group):
     needs = {"repro_mnist_fit": ["task.lookup_run=outputs/repro/digital_mnist/lookup"]}  # a phase's input
     for option in config.options(group):
@@ -273,3 +274,13 @@ def test_multirun_sweeps_seeds(tmp_path):
     assert len(runs) == 2
     a, b = (final_params(r.parent)["net"] for r in runs)
     assert not np.allclose(dict(_flatten(a))["/params/Dense_0/kernel"], dict(_flatten(b))["/params/Dense_0/kernel"])
+
+
+def test_fields_are_written_as_asked(tmp_path):
+    """trainer.fields: every evaluation into fields/step_<n>/, or none at all (default: the final one)."""
+    nma_run(tmp_path / "all", "logger=none", *FAST, "trainer.eval_every=1", "trainer.fields=all")
+    for step in (1, 2):
+        assert len(list((tmp_path / "all" / "fields" / f"step_{step:07d}").glob("eval_*.h5"))) == 4
+    assert not list((tmp_path / "all" / "fields").glob("eval_*.h5"))
+    nma_run(tmp_path / "none", "logger=none", *FAST, "trainer.fields=none")
+    assert (tmp_path / "none" / "metrics.json").exists() and not (tmp_path / "none" / "fields").exists()

@@ -27,13 +27,14 @@ def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: d
     return path
 
 
-def write_eval_fields(run_dir: Path, sim, evaluation: dict, samples: int) -> list[Path]:
+def write_eval_fields(directory: Path, sim, evaluation: dict, samples: int) -> list[Path]:
+    """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory`."""
     X, d, u, out, ts, ok = evaluation["_solution"]
     paths = []
     for i in range(len(ts)):
         if not ok[i]:
             continue
-        h5, _ = write_fields(run_dir / "fields" / f"eval_{i:03d}.h5", sim.disc, X, u[i], samples,
+        h5, _ = write_fields(directory / f"eval_{i:03d}.h5", sim.disc, X, u[i], samples,
                              attrs={"descriptor": np.asarray(ts[i]), "actuation": np.asarray(d[i]),
                                     "observed": np.asarray(out[i])})
         paths.append(h5)
