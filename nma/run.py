@@ -110,12 +110,16 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
         artefacts.figure_shapes(figures / "shapes.png", task, evaluation)
     if s.trainer.fields == "final":
         artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
-    artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
-                            {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
-                             "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
-                             "no_actuation": task.rest_metric(sim),
-                             "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
-    log.info("final %s = %.4g %s", task.metric_name, evaluation[task.metric_name], task.metric_unit)
+    at_rest = task.rest_metric(sim)
+    metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
+                                      {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
+                                       "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
+                                       "no_actuation": at_rest,
+                                       "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
+    log.info("final %s = %.4g %s after %d steps (the initial design at rest, no actuation: %.4g)",
+             task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"], at_rest)
+    log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
+             ", ".join(sorted(p.name for p in figures.glob("*.png"))), metrics)
     return evaluation
 
 

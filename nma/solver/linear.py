@@ -168,8 +168,8 @@ class PardisoBackend(HostBackend):
         _point_pypardiso_at_mkl()
         try:
             import pypardiso
-        except ImportError as exc:  # an optional extra: pip install "nma[pardiso]"
-            raise RuntimeError('solver.linear=pardiso needs pypardiso (Intel MKL): pip install "nma[pardiso]", '
+        except ImportError as exc:  # pragma: no cover - a dependency; MKL wheels exist for x86-64 only
+            raise RuntimeError("solver.linear=pardiso needs pypardiso (Intel MKL): pip install pypardiso, "
                                "or use solver.linear=superlu") from exc
         self._template = pypardiso.PyPardisoSolver(mtype=-2)  # finds and loads MKL (slow): once
         # one thread per factorisation: a batch's samples run in parallel instead, and idle MKL threads
