@@ -34,11 +34,11 @@ def stats(xs):
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
-def make_trainer(scene: str, workers: int, init_from: str | None):
+def trainer_for(scene: str, workers: int, init_from: str | None):
     from hydra import compose, initialize_config_dir
 
     from nma.config import CONF_DIR
-    from nma.run import make_trainer as build_trainer, validate
+    from nma.run import make_trainer, validate
     from nma.schema import register
 
     register()
@@ -46,7 +46,7 @@ def make_trainer(scene: str, workers: int, init_from: str | None):
                  f"solver.workers={workers}"] + ([f"trainer.init_from={init_from}"] if init_from else [])
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
-    return build_trainer(validate(cfg), Path(tempfile.mkdtemp(prefix="nma-bench-")))
+    return make_trainer(validate(cfg), Path(tempfile.mkdtemp(prefix="nma-bench-")))
 
 
 def timed_step(trainer):
@@ -61,14 +61,14 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
     from nma.runtime import configure_jax
 
     configure_jax()
-    trainer = make_trainer(scene, 0, init_from)
+    trainer = trainer_for(scene, 0, init_from)
     built = time.perf_counter() - t0
     first, _ = timed_step(trainer)
     out = {"build_seconds": built, "first_step_seconds": first, "to_first_step_seconds": built + first,
            "batch_size": trainer.cfg.batch_size, "dofs": trainer.sim.disc.n_dofs,
            "workers": trainer.sim.workers}
     if compare:
-        single = make_trainer(scene, 1, init_from)
+        single = trainer_for(scene, 1, init_from)
         timed_step(single)  # its own compile
         single.state = trainer.state
         runs = {"threads": ([], []), "one_thread": ([], [])}

@@ -54,14 +54,13 @@ class Workspace:
         self.backend = backend
         self.factor = None
 
-    def factorise(self, kel, shift: float = 0.0):
+    def factorise(self, kel, shift: float = 0.0) -> None:
         clock = self.backend.clock
         with clock.time("assembly"):
             A = self.backend.pattern.matrix(np.asarray(kel), shift)
         with clock.time("factorisation"):
             self.factor = self.backend.factorise(A, self.factor)
         self.backend.count("factorisations")
-        return A
 
     def solve(self, b) -> np.ndarray:
         with self.backend.clock.time("back_substitution"):

@@ -71,6 +71,7 @@ class Equations:
         self.dirichlet = jnp.asarray(disc.dirichlet_dofs)
         self.A = jnp.asarray(disc.actuation_matrix)
         self.f_ext = jnp.asarray(disc.external_force)
+        self.f_free = self.f_ext[self.free]
         self.edofs = jnp.asarray(element_dofs(disc))
 
     def full(self, u_free, lam, u_D):
@@ -89,7 +90,7 @@ class Equations:
         u = self.full(u_free, lam, u_D)
         energy, force, kel = energy_force_tangents(self.disc, quad, u, mat)
         potential = energy - lam * jnp.dot(self.f_ext, u.reshape(-1))
-        return potential, force.reshape(-1)[self.free] - lam * self.f_ext[self.free], kel
+        return potential, force.reshape(-1)[self.free] - lam * self.f_free, kel
 
     def coupling(self, kel, u_D):
         """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
@@ -131,7 +132,7 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat) -> tuple[Problem, _Sta
 def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Linearised:
     """First half of an iteration: linearise at the state; a corrector that meets the tolerance closes
     its load step (and the solve, at full load); the right-hand side of the next step."""
-    f_free = eqs.f_ext[eqs.free]
+    f_free = eqs.f_free
     E0, g, kel = eqs.linearise(p.quad, s.u, s.lam, p.u_D, p.mat)
     rnorm = jnp.linalg.norm(g)
     first = s.it == 0
