@@ -37,6 +37,30 @@ def validate(cfg: DictConfig) -> TrainConfig:
     return settings
 
 
+def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
+    """A training run directory's checked settings, its newest checkpointed parameters ({"net",
+    "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
+    from omegaconf import OmegaConf
+
+    from .schema import TASK_SCHEMAS, ConfigError
+    from .train import checkpoint
+
+    run = Path(run_dir)
+    saved = run / ".hydra" / "config.yaml"
+    if not saved.is_file():
+        raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
+    cfg = OmegaConf.load(saved)
+    name = OmegaConf.select(cfg, "task.name")
+    if name not in TASK_SCHEMAS:
+        raise ConfigError(f"run={run}: its config names task {name!r}, not one of {sorted(TASK_SCHEMAS)}")
+    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(TASK_SCHEMAS[name])}, cfg))
+    found = checkpoint.load_latest(run / "checkpoints")
+    if found is None:
+        raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
+    path, raw = found
+    return settings, raw["params"], path
+
+
 def fingerprint(s: TrainConfig) -> dict:
     """The settings that shape the parameters, the optimiser state or the data: a checkpoint written
     under other values must not be continued silently."""

@@ -473,6 +473,18 @@ class SimulateConfig:
                               f"{self.scene.name}, got {len(self.actuation)}: {self.actuation}")
 
 
+@dataclass
+class ExportConfig(Schema):
+    """`python -m nma.export run=<run dir>`: a trained run's geometry as a file to make it from."""
+    run: str = MISSING                      # a training run directory (its .hydra/config.yaml and checkpoints)
+    format: str = choice("svg", ("svg", "dxf", "stl"))
+    scale: float = bounded(1.0, "(0, inf)", doc="millimetres per length unit of the scene")
+    thickness: float = bounded(10.0, "(0, inf)", doc="STL: extrusion height in millimetres")
+    samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
+                                                "(STL, the fabrication report)")
+    output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
+
+
 def build(schema: type, values: Any = None):
     """A checked schema instance from a mapping (or an OmegaConf node); errors name the field."""
     from omegaconf import OmegaConf
@@ -543,5 +555,6 @@ def register() -> None:
     cs = ConfigStore.instance()
     cs.store(name="train_schema", node=TrainConfig)
     cs.store(name="simulate_schema", node=SimulateConfig)
+    cs.store(name="export_schema", node=ExportConfig)
     for name, schema in TASK_SCHEMAS.items():
         cs.store(group="task", name=f"{name}_schema", node=schema(name=name))

@@ -133,9 +133,12 @@ class DigitalMNIST(Task):
         self.pattern = jnp.asarray(SEVEN_SEGMENT)
 
     def sample(self, key, n):
-        if self.lookup:  # every step shows the network (a lookup table) labels drawn uniformly
-            return jnp.concatenate([jax.random.randint(key, (n, 1), 0, 10).astype(float),
-                                    jnp.zeros((n, 784))], axis=1)
+        if self.lookup:
+            # Every step shows the table each digit in turn (n = 10: all ten, a full-batch gradient; the
+            # ten entries share one colour field, so a step that misses a digit can undo what it learned).
+            start = jax.random.randint(key, (), 0, 10)
+            labels = (start + jnp.arange(n)) % 10
+            return jnp.concatenate([labels[:, None].astype(float), jnp.zeros((n, 784))], axis=1)
         return self.train[jax.random.randint(key, (n,), 0, self.train.shape[0])]
 
     def net_input(self, t):

@@ -1,0 +1,172 @@
+"""A trained design as a file to make it from, and the numbers a fabricator checks first.
+
+    python -m nma.export run=outputs/runs/translation/<date>/<time> format=svg|dxf|stl [scale=2] [thickness=10]
+
+Writes <run>/export/design.<format> (or `output=`) and fabrication.json beside it, and prints the report
+as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per length unit of the scene.
+- svg: the outer boundary and every pore as one path of quadratic Bezier segments, exactly the design's
+  curves (even-odd fill), the page sized in millimetres;
+- dxf: one degree-2 SPLINE per closed curve, exactly the design's B-splines, drawing units millimetres;
+- stl: the section (the curves through `samples` points per knot span) extruded to `thickness` mm.
+The report: bounding box, material area, porosity (pore area over the area the outer boundary
+encloses), and the minimum ligament width, the narrowest material between two boundary curves (pore
+to pore, or pore to outer boundary) and where it is.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig
+
+from . import cli
+from .config import CONF_DIR
+from .geometry.outline import Outline, bezier_segments, loop_spline
+from .schema import ConfigError, ExportConfig, build, register
+
+register()
+
+
+def validate(cfg: DictConfig) -> ExportConfig:
+    from .run import load_run
+
+    settings = build(ExportConfig, cfg)
+    load_run(settings.run)  # the run directory must hold a config and a checkpoint before any work
+    return settings
+
+
+def trained_outline(run_dir) -> Outline:
+    """The outline of a run's newest checkpointed geometry, in the scene's length units."""
+    from .runtime import configure_jax
+
+    configure_jax()
+    import jax.numpy as jnp
+
+    from .geometry.discretise import discretise
+    from .geometry.scene import scene_from_config
+    from .run import load_run
+    from .schema import Fidelity
+
+    settings, params, _ = load_run(run_dir)
+    disc = discretise(scene_from_config(settings.scene), Fidelity(5, 2))  # the design nets themselves
+    geom = {}
+    for name, init in disc.init_params().items():
+        saved = np.asarray(params.get("geom", {}).get(name, init))
+        if saved.shape != init.shape:
+            raise ConfigError(f"run={run_dir}: geometry {name} has shape {saved.shape}, the scene needs {init.shape}")
+        geom[name] = jnp.asarray(saved, init.dtype)
+    return Outline.of(disc, disc.reference_points(geom))
+
+
+def fabrication_report(outline: Outline, samples: int) -> dict:
+    """Bounding box, material area and porosity (exact), and the minimum ligament width between two
+    boundary curves (on polylines through `samples` points per span) of an outline, in its units."""
+    import shapely
+
+    polygon = outline.polygon(samples)
+    if not polygon.is_valid:
+        raise ConfigError(f"the design's boundary curves cross each other ({shapely.is_valid_reason(polygon)}); "
+                          "it cannot be made as one piece")
+    rings = [polygon.exterior, *polygon.interiors]
+    names = ["outer boundary"] + [f"pore {k}" for k in range(1, len(rings))]
+    i, j = np.triu_indices(len(rings), k=1)
+    ring_array = np.asarray(rings, dtype=object)
+    widths = shapely.distance(ring_array[i], ring_array[j])
+    xmin, ymin, xmax, ymax = polygon.bounds
+    enclosed = outline.enclosed_areas()
+    report = {"bounding_box": [xmin, ymin, xmax, ymax], "size": [xmax - xmin, ymax - ymin],
+              "material_area": outline.area, "porosity": -float(np.sum(enclosed[1:])) / float(enclosed[0]),
+              "pores": len(rings) - 1}
+    if len(widths):
+        k = int(np.argmin(widths))
+        line = shapely.shortest_line(ring_array[i[k]], ring_array[j[k]])
+        report.update(min_ligament=float(widths[k]), min_ligament_between=[names[i[k]], names[j[k]]],
+                      min_ligament_at=np.asarray(line.centroid.coords[0]).tolist())
+    return report
+
+
+def write_svg(outline: Outline, path: Path) -> Path:
+    """The outline as one SVG path of quadratic Bezier segments, y up, the page sized in millimetres."""
+    xmin, ymin, xmax, ymax = outline.bounds
+    w, h = xmax - xmin, ymax - ymin
+    pad = 0.02 * max(w, h)
+    svg = ET.Element("svg", xmlns="http://www.w3.org/2000/svg", version="1.1",
+                     width=f"{w + 2 * pad:.6g}mm", height=f"{h + 2 * pad:.6g}mm",
+                     viewBox=f"{xmin - pad:.9g} {-ymax - pad:.9g} {w + 2 * pad:.9g} {h + 2 * pad:.9g}")
+    commands = []
+    for loop in outline.loops:
+        segments = bezier_segments(loop)
+        commands.append("M {:.9g} {:.9g}".format(*segments[0, 0]))
+        commands += ["Q {:.9g} {:.9g} {:.9g} {:.9g}".format(*s[1], *s[2]) for s in segments]
+        commands.append("Z")
+    group = ET.SubElement(svg, "g", transform="scale(1,-1)")  # the scene's y axis points up
+    ET.SubElement(group, "path", d=" ".join(commands), fill="#8fa8c8", stroke="#000000",
+                  style="fill-rule:evenodd;stroke-width:0.1")
+    ET.ElementTree(svg).write(path, encoding="utf-8", xml_declaration=True)
+    return path
+
+
+def write_dxf(outline: Outline, path: Path) -> Path:
+    """One exact degree-2 SPLINE per closed curve: layer OUTLINE for the outer boundary, PORES for the rest."""
+    import ezdxf
+    from ezdxf import units
+
+    logging.getLogger("ezdxf").setLevel(logging.WARNING)  # it narrates every table it creates
+    doc = ezdxf.new("R2010", units=units.MM)
+    msp = doc.modelspace()
+    for k, loop in enumerate(outline.loops):
+        ctrl, knots = loop_spline(loop)
+        msp.add_open_spline([(x, y, 0.0) for x, y in ctrl], degree=2, knots=knots.tolist(),
+                            dxfattribs={"layer": "OUTLINE" if k == 0 else "PORES"})
+    doc.saveas(path)
+    return path
+
+
+def write_stl(outline: Outline, path: Path, thickness: float, samples: int) -> float:
+    """The section extruded to `thickness`; refuses to write a mesh that is not watertight.
+    Returns the mesh's volume."""
+    import trimesh
+
+    mesh = trimesh.creation.extrude_polygon(outline.polygon(samples), height=thickness)
+    if not mesh.is_watertight:
+        raise RuntimeError(f"the extruded mesh of {path.name} is not watertight")
+    mesh.export(path)
+    return float(mesh.volume)
+
+
+def export(s: ExportConfig) -> dict:
+    outline = trained_outline(s.run).scaled(s.scale)
+    path = Path(s.output) if s.output else Path(s.run) / "export" / f"design.{s.format}"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    report = fabrication_report(outline, s.samples)
+    if s.format == "svg":
+        write_svg(outline, path)
+    elif s.format == "dxf":
+        write_dxf(outline, path)
+    else:
+        report["thickness"] = s.thickness
+        report["volume"] = write_stl(outline, path, s.thickness, s.samples)
+    result = {"file": str(path), "format": s.format, "units": "mm", "scale_mm_per_unit": s.scale, **report}
+    (path.parent / "fabrication.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="export", version_base="1.3")
+def hydra_main(cfg: DictConfig) -> None:
+    with cli.exit_codes():
+        result = export(validate(cfg))
+    print(json.dumps(result), flush=True)
+
+
+def main() -> None:
+    cli.preflight("export", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
+    hydra_main()
+
+
+if __name__ == "__main__":
+    main()

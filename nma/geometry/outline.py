@@ -1,0 +1,169 @@
+"""The material's boundary as closed curves, for fabrication (nma.export) and for what a maker checks.
+
+A scene is a union of 5 x 5 quadratic B-spline patches (the design nets); an edge that belongs to one
+patch only lies on the boundary.  Chained at their end points, the boundary edges form closed loops:
+the outer boundary and one loop per pore.  Each edge is a quadratic B-spline on three uniform spans
+(open knots), so a loop is exactly one quadratic B-spline with double knots where edges join (C0
+there), and every span is exactly one quadratic Bezier segment.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .bspline import DESIGN_CTRL, basis_matrix, gauss_legendre_01
+from .discretise import Discretisation
+
+SPANS = DESIGN_CTRL - 2  # knot spans per edge of a design net
+
+
+def boundary_edges(disc: Discretisation) -> list[np.ndarray]:
+    """Point indices (5,) of each boundary edge, running counter-clockwise around its own patch.
+
+    `disc` must be discretised at the design's resolution (5 control points per patch), so that its
+    merged point indices are those of the design nets."""
+    m = disc.fidelity.ctrl_per_patch
+    if m != DESIGN_CTRL:
+        raise ValueError(f"boundary_edges needs a discretisation with {DESIGN_CTRL} control points per patch, got {m}")
+    grid = disc.patch_points.reshape(-1, m, m)  # [patch, i along s, j along t]
+    sides = [grid[:, :, 0], grid[:, -1, :], grid[:, ::-1, -1], grid[:, 0, ::-1]]  # bottom, right, top, left
+    count: dict[tuple, list] = {}
+    for side in sides:
+        for edge in side:
+            if len(set(edge.tolist())) == 1:
+                continue  # collapsed to a point
+            key = min(tuple(edge), tuple(edge[::-1]))
+            count.setdefault(key, []).append(edge)
+    return [found[0] for found in count.values() if len(found) == 1]
+
+
+def chain(edges: list[np.ndarray]) -> list[list[np.ndarray]]:
+    """The boundary edges grouped into closed loops, each edge oriented to follow the one before."""
+    at: dict[int, list[int]] = {}
+    for k, e in enumerate(edges):
+        for end in (e[0], e[-1]):
+            at.setdefault(int(end), []).append(k)
+    if any(len(v) != 2 for v in at.values()):
+        bad = [p for p, v in at.items() if len(v) != 2]
+        raise ValueError(f"the boundary is not a set of simple closed curves (points {bad[:5]} join "
+                         f"{[len(at[p]) for p in bad[:5]]} boundary edges)")
+    unused, loops = set(range(len(edges))), []
+    while unused:
+        k = min(unused)
+        unused.remove(k)
+        loop = [edges[k]]
+        while True:
+            end = int(loop[-1][-1])
+            nxt = [j for j in at[end] if j in unused]
+            if not nxt:
+                break
+            j = nxt[0]
+            unused.remove(j)
+            loop.append(edges[j] if edges[j][0] == end else edges[j][::-1])
+        if loop[-1][-1] != loop[0][0]:
+            raise ValueError("a boundary loop does not close")
+        loops.append(loop)
+    return loops
+
+
+def signed_area(polyline: np.ndarray) -> float:
+    """Shoelace area of a closed polyline (n, 2): positive counter-clockwise."""
+    x, y = polyline[:, 0], polyline[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+@dataclass(frozen=True)
+class Outline:
+    """Closed boundary loops of a design, each (n_edges, 5, 2) edge control polygons, chained.
+    loops[0] is the outer boundary (counter-clockwise); the others are pores (clockwise)."""
+    loops: tuple[np.ndarray, ...]
+
+    @classmethod
+    def of(cls, disc: Discretisation, points) -> "Outline":
+        """The outline of the control points `points` (n_points, 2) of `disc` (5 per patch)."""
+        points = np.asarray(points, float)
+        loops = [points[np.stack(loop)] for loop in chain(boundary_edges(disc))]
+        areas = [signed_area(sample_loop(lp, 8)) for lp in loops]
+        outer = int(np.argmax(np.abs(areas)))
+        order = [outer] + [k for k in range(len(loops)) if k != outer]
+        oriented = []
+        for k in order:
+            ccw = areas[k] > 0
+            keep = ccw if k == outer else not ccw
+            oriented.append(loops[k] if keep else loops[k][::-1, ::-1])
+        return cls(tuple(oriented))
+
+    def scaled(self, factor: float) -> "Outline":
+        return Outline(tuple(lp * factor for lp in self.loops))
+
+    @property
+    def outer(self) -> np.ndarray:
+        return self.loops[0]
+
+    @property
+    def pores(self) -> tuple[np.ndarray, ...]:
+        return self.loops[1:]
+
+    def polylines(self, per_span: int = 16) -> list[np.ndarray]:
+        return [sample_loop(lp, per_span) for lp in self.loops]
+
+    def polygon(self, per_span: int = 16):
+        """A shapely Polygon (outer boundary with the pores as holes) through `per_span` points per span."""
+        from shapely.geometry import Polygon
+
+        lines = self.polylines(per_span)
+        return Polygon(lines[0], holes=lines[1:])
+
+    def enclosed_areas(self) -> np.ndarray:
+        """Signed area inside each loop, exactly (Green's theorem; the integrand is a cubic per span)."""
+        g, w = gauss_legendre_01(2)
+        t = (np.arange(SPANS)[:, None] + g[None]).ravel() / SPANS
+        B, dB = basis_matrix(t, DESIGN_CTRL), basis_matrix(t, DESIGN_CTRL, derivative=1)
+        areas = []
+        for loop in self.loops:
+            x, dx = np.einsum("nk,ekd->end", B, loop), np.einsum("nk,ekd->end", dB, loop)
+            integrand = x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]
+            areas.append(0.5 * np.sum(integrand * np.tile(w, SPANS) / SPANS))
+        return np.asarray(areas)
+
+    @property
+    def area(self) -> float:
+        """The material's area: the outer boundary's minus the pores' (exact)."""
+        return float(np.sum(self.enclosed_areas()))
+
+    @cached_property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax): the control polygons' box, which holds every curve."""
+        pts = np.concatenate([lp.reshape(-1, 2) for lp in self.loops])
+        return (*pts.min(axis=0), *pts.max(axis=0))
+
+
+def sample_loop(loop: np.ndarray, per_span: int) -> np.ndarray:
+    """Points along a loop, `per_span` per knot span, each join once: (n_edges * SPANS * per_span, 2)."""
+    t = np.arange(SPANS * per_span) / (SPANS * per_span)
+    B = basis_matrix(t, DESIGN_CTRL)  # (n, 5)
+    return np.einsum("nk,ekd->end", B, loop).reshape(-1, 2)
+
+
+def bezier_segments(loop: np.ndarray) -> np.ndarray:
+    """The loop as quadratic Bezier segments (n_edges * SPANS, 3, 2), exactly: per span [a, b] the
+    end points C(a), C(b) and the control point 2 C(mid) - (C(a) + C(b)) / 2."""
+    a = np.arange(SPANS) / SPANS
+    t = np.stack([a, a + 0.5 / SPANS, a + 1.0 / SPANS], axis=1).ravel()
+    C = np.einsum("nk,ekd->end", basis_matrix(t, DESIGN_CTRL), loop).reshape(len(loop), SPANS, 3, 2)
+    ends = C[:, :, [0, 2]]
+    ctrl = 2.0 * C[:, :, 1] - 0.5 * (ends[:, :, 0] + ends[:, :, 1])
+    return np.stack([ends[:, :, 0], ctrl, ends[:, :, 1]], axis=2).reshape(-1, 3, 2)
+
+
+def loop_spline(loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One quadratic B-spline through the whole loop: control points (4 n + 1, 2) and knots
+    (4 n + 4,), with double knots where edges join, so that it equals the edges exactly."""
+    n = len(loop)
+    ctrl = np.concatenate([loop[0]] + [e[1:] for e in loop[1:]])
+    inner = [k + s / SPANS for k in range(n) for s in range(1, SPANS)]
+    joins = [float(k) for k in range(1, n) for _ in range(2)]
+    knots = np.sort(np.concatenate([[0.0] * 3, inner, joins, [float(n)] * 3]))
+    return ctrl, knots
