@@ -130,6 +130,11 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     else:
         artefacts.figure_deformed(figures / "deformed.png", sim, task, evaluation)
     artefacts.figure_curves(figures / "curves.png", task, trainer.history)
+    if task.coordinates(task.eval_set()) is not None or task.outline:
+        artefacts.figure_errors(figures / "errors.png", task, evaluation)
+    if s.trainer.animation_frames:
+        sweep = trainer.evaluate(task.sweep(s.trainer.animation_frames))
+        artefacts.animation_sweep(figures / "sweep.gif", sim, task, sweep, geom, task.sweep_fps)
     if task.outline:
         artefacts.figure_shapes(figures / "shapes.png", task, evaluation)
     if s.trainer.fields == "final":
@@ -143,7 +148,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     log.info("final %s = %.4g %s after %d steps (the initial design at rest, no actuation: %.4g)",
              task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"], at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
-             ", ".join(sorted(p.name for p in figures.glob("*.png"))), metrics)
+             ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
     return evaluation
 
 

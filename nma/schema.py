@@ -405,6 +405,8 @@ class TrainerConfig(Schema):
     fields: str = choice("final", ("final", "all", "none"),
                          doc="HDF5 fields of the evaluation samples: of the final evaluation, of every one, or none")
     fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
+    animation_frames: int = bounded(24, "[0, 1000]", doc="frames of figures/sweep.gif, the material as the task's "
+                                                        "descriptor sweeps its range; 0: none")
     max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
     init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
     progress: bool = True

@@ -18,7 +18,7 @@ from nma.run import validate
 from nma.schema import ConfigError
 
 FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
-        "task.eval_grid=2", "fidelity=fast"]
+        "trainer.animation_frames=3", "task.eval_grid=2", "fidelity=fast"]
 
 
 def compose_cfg(*overrides):
@@ -95,8 +95,12 @@ def test_run_directory_holds_every_artefact(translation_run):
     assert metrics["metric"] == "mean_pointer_error" and np.isfinite(metrics["value"])
     assert [h["step"] for h in metrics["history"]] == [1, 2]
     assert len(list((d / "fields").glob("eval_*.h5"))) == 4 == len(list((d / "fields").glob("eval_*.xdmf")))
-    for png in ("design.png", "deformed.png", "curves.png"):
+    for png in ("design.png", "deformed.png", "curves.png", "errors.png"):
         assert (d / "figures" / png).stat().st_size > 5_000
+    from PIL import Image
+
+    with Image.open(d / "figures" / "sweep.gif") as gif:  # the material along the task's sweep, frame by frame
+        assert gif.n_frames == 3
     assert list((d / "wandb").glob("offline-run-*"))  # wandb logs offline by default
 
 
@@ -125,8 +129,8 @@ def test_tasks_train_from_the_command_line(tmp_path, task, eval_size, metric):
     assert metrics["metric"] == metric and len(metrics["per_sample"]) == 3
     assert np.all(np.isfinite(metrics["per_sample"]))
     assert len(list((tmp_path / "fields").glob("eval_*.h5"))) == 3
-    extra = {"shape_matching": ["shapes.png"], "digital_mnist": ["colours.png"]}.get(task, [])
-    for png in ["design.png", "deformed.png", "curves.png"] + extra:
+    extra = {"shape_matching": ["shapes.png", "errors.png"], "digital_mnist": ["colours.png"]}.get(task, ["errors.png"])
+    for png in ["design.png", "deformed.png", "curves.png", "sweep.gif"] + extra:
         assert (tmp_path / "figures" / png).stat().st_size > 5_000
 
 

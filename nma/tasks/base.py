@@ -54,6 +54,27 @@ class Task:
         """The target where a figure draws it next to the observed output."""
         return self.targets(t)
 
+    # -- what figures say in words --------------------------------------------------------------------
+    @property
+    def metric_label(self) -> str:
+        """The metric in words, for axes and titles."""
+        return self.metric_name.replace("_", " ")
+
+    def describe(self, t: jnp.ndarray) -> str:
+        """One descriptor in words (a panel's title)."""
+        return ""
+
+    def coordinates(self, ts: jnp.ndarray):
+        """(values (n, k), axis labels) placing descriptors on k <= 2 readable axes, or None when they
+        have no such axes (shapes, images): figures then show the metric's distribution instead."""
+        return None
+
+    def sweep(self, n: int) -> jnp.ndarray:
+        """Descriptors along the task's range, in order, for the animation (figures/sweep.gif)."""
+        return self.eval_set()[:n]
+
+    sweep_fps = 1.0  # frames per second of the animation: slow for a sequence of separate samples
+
     def rest_metric(self, sim) -> float:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
         import jax

@@ -186,6 +186,18 @@ class DigitalMNIST(Task):
     def eval_set(self):
         return self._eval
 
+    @property
+    def metric_label(self):
+        return "digits of the table shown right" if self.lookup else "held-out digits shown exactly"
+
+    def describe(self, t):
+        return f"digit {int(t[0])}"
+
+    def sweep(self, n):
+        """One evaluation sample of each digit, 0 to 9."""
+        labels = np.asarray(self._eval[:, 0]).astype(int)
+        return self._eval[np.asarray([np.flatnonzero(labels == c)[0] for c in np.unique(labels)][:n])]
+
 
 @TASKS.register("digital_mnist")
 def digital_mnist(cfg: DigitalMNISTTask, sim) -> DigitalMNIST:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..registry import TASKS
 from ..schema import RotationTask
@@ -42,6 +43,20 @@ class Rotation(Task):
 
     def eval_set(self):
         return self._eval
+
+    metric_label = "error of the stick's angle"
+    sweep_fps = 8.0
+
+    def describe(self, t):
+        return f"target angle {float(np.degrees(t[0])):+.1f}°"
+
+    def coordinates(self, ts):
+        return np.degrees(np.asarray(ts)), ["target angle [degrees]"]
+
+    def sweep(self, n):
+        """From the smallest angle to the largest and back."""
+        up = jnp.linspace(self.lo, self.hi, (n + 1) // 2 + 1)
+        return jnp.concatenate([up, up[-2:0:-1]])[:n, None]
 
 
 def _rotation(name):

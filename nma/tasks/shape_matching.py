@@ -118,6 +118,11 @@ class ShapeMatching(Task):
     def eval_set(self):
         return self._eval
 
+    metric_label = "shape error (after the best shift, scale, rotation and start point)"
+
+    def describe(self, t):
+        return "held-out target"
+
     def shown_target(self, out, t):
         return fit_onto(out, self.targets(t))
 

@@ -36,6 +36,20 @@ class Translation(Task):
     def eval_set(self):
         return self._eval
 
+    metric_label = "distance of the pointer to its target"
+    sweep_fps = 8.0
+
+    def describe(self, t):
+        return "target ({:+.2f}, {:+.2f})".format(*np.asarray(t))
+
+    def coordinates(self, ts):
+        return np.asarray(ts), ["target offset x [length units]", "target offset y [length units]"]
+
+    def sweep(self, n):
+        """Once round the circle inscribed in the target box."""
+        phi = jnp.linspace(0.0, 2.0 * jnp.pi, n, endpoint=False)
+        return self.half_width * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)
+
 
 @TASKS.register("translation")
 def translation(cfg: TranslationTask, sim) -> Translation:

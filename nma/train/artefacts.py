@@ -11,7 +11,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..io.fields import write_fields  # noqa: E402
-from ..viz.plot import draw_shape  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+
+from ..viz.plot import ACTUATED, MATERIAL, TRACKED, draw_actuated, draw_shape  # noqa: E402
 
 
 def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: dict) -> Path:
@@ -42,26 +45,143 @@ def write_eval_fields(directory: Path, sim, evaluation: dict, samples: int) -> l
 
 
 def figure_designs(path: Path, sim, X_before, X_after):
-    fig, axes = plt.subplots(1, 2, figsize=(8, 4))
-    draw_shape(axes[0], sim.disc, np.asarray(X_before), "design before")
-    draw_shape(axes[1], sim.disc, np.asarray(X_after), "design after", colour="#7fb58f")
-    fig.tight_layout()
+    """The design before and after training, on one scale in the scene's length units."""
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4.9), sharex=True, sharey=True)
+    for ax, X, which in ((axes[0], X_before, "initial"), (axes[1], X_after, "learned")):
+        X = np.asarray(X)
+        draw_shape(ax, sim.disc, X, f"{which} design", colour=MATERIAL[which],
+                   tracked=sim.disc.tracked_points(X), frame=True)
+        draw_actuated(ax, sim.disc, X)
+        ax.set_xlabel("x [length units]")
+    axes[0].set_ylabel("y [length units]")
+    handles = [Patch(fc=MATERIAL["initial"], ec="#2b3a55", label="material, initial design"),
+               Patch(fc=MATERIAL["learned"], ec="#2b3a55", label="material, learned design"),
+               Line2D([], [], color=ACTUATED, lw=2, label="actuated boundary")]
+    if sim.disc.tracked:
+        handles.append(Line2D([], [], color=TRACKED, marker="o", ls="", label="tracked point"))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
 
-def figure_deformed(path: Path, sim, task, evaluation: dict, n: int = 4):
+def _layout(task, ts, limit: int):
+    """Which samples to draw (at most `limit`) and where: (indices, rows, cols, (row, col) per index).
+    Samples on a 2D grid of descriptors keep their places (largest y on top)."""
+    n = len(ts)
+    pick = np.arange(n) if n <= limit else np.linspace(0, n - 1, limit).round().astype(int)
+    coords = task.coordinates(np.asarray(ts)[pick])
+    if coords is not None and coords[0].shape[1] == 2:
+        xs, ys = (np.unique(np.round(coords[0][:, k], 9)) for k in range(2))
+        if len(xs) * len(ys) == len(pick):
+            col = np.searchsorted(xs, np.round(coords[0][:, 0], 9))
+            row = len(ys) - 1 - np.searchsorted(ys, np.round(coords[0][:, 1], 9))
+            return pick, len(ys), len(xs), list(zip(row, col))
+    cols = int(np.ceil(np.sqrt(len(pick))))
+    rows = int(np.ceil(len(pick) / cols))
+    return pick, rows, cols, [divmod(j, cols) for j in range(len(pick))]
+
+
+def figure_deformed(path: Path, sim, task, evaluation: dict, limit: int = 36):
+    """Every evaluation sample (at most `limit`, evenly chosen) deformed, all on one scale, with its
+    target, what it reached and its error."""
     X, d, u, out, ts, ok = evaluation["_solution"]
-    pick = np.linspace(0, len(ts) - 1, min(n, len(ts))).astype(int)
-    fig, axes = plt.subplots(1, len(pick), figsize=(3.2 * len(pick), 3.4))
-    for ax, i in zip(np.atleast_1d(axes), pick):
-        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"t = {np.round(np.asarray(ts[i]), 2).tolist()}",
-                   colour="#d9a38f")
+    pick, rows, cols, place = _layout(task, ts, limit)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.1 * cols, 2.2 * rows + 0.9), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    per = evaluation["per_sample"]
+    for i, (r, c) in zip(pick, place):
+        ax = axes[r, c]
+        status = f"error {per[i]:.3g}" if ok[i] else "solve failed"
+        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"{task.describe(ts[i])}\n{status}", colour=MATERIAL["deformed"])
+        ax.title.set_fontsize(7)
         _draw_target(ax, task, out[i], ts[i])
-    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=7)
+    handles, labels = axes[place[0]].get_legend_handles_labels()
+    shown = "every evaluation sample" if len(pick) == len(ts) else f"{len(pick)} of the {len(ts)} evaluation samples"
+    fig.suptitle(f"{task.name}: {shown}, deformed, on one scale\nmean {task.metric_label} = "
+                 f"{evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure_errors(path: Path, task, evaluation: dict):
+    """The metric of every evaluation sample over the task's descriptor (a map over a 2D target box,
+    a curve over an angle range) or, where descriptors have no axes, its distribution."""
+    X, d, u, out, ts, ok = evaluation["_solution"]
+    per, ok = np.asarray(evaluation["per_sample"], float), np.asarray(ok)
+    label = f"{task.metric_label} [{task.metric_unit}]"
+    coords = task.coordinates(np.asarray(ts))
+    fig, ax = plt.subplots(figsize=(5.6, 4.4))
+    if coords is None:
+        ax.hist(per[ok], bins=min(20, max(5, ok.sum() // 3)), color=MATERIAL["initial"], ec="#2b3a55")
+        ax.set(xlabel=label, ylabel="evaluation samples")
+    elif coords[0].shape[1] == 1:
+        x = coords[0][:, 0]
+        ax.plot(x[ok], per[ok], "o-", ms=4, color="#1f3fbf", label="converged")
+        ax.set(xlabel=coords[1][0], ylabel=label, ylim=(0, None))
+    else:
+        x, y = coords[0].T
+        xs, ys = np.unique(x), np.unique(y)
+        if len(xs) * len(ys) == len(per) and len(xs) > 1 and len(ys) > 1:  # a grid: a map of cells
+            grid = np.full((len(ys), len(xs)), np.nan)
+            grid[np.searchsorted(ys, y[ok]), np.searchsorted(xs, x[ok])] = per[ok]
+            edges = lambda v: np.concatenate([[1.5 * v[0] - 0.5 * v[1]], 0.5 * (v[1:] + v[:-1]),  # noqa: E731
+                                              [1.5 * v[-1] - 0.5 * v[-2]]])
+            shown = ax.pcolormesh(edges(xs), edges(ys), grid, cmap="viridis", vmin=0.0)
+        else:
+            shown = ax.scatter(x[ok], y[ok], c=per[ok], s=40, cmap="viridis", vmin=0.0)
+        fig.colorbar(shown, ax=ax, label=f"error [{task.metric_unit}]")
+        ax.set(xlabel=coords[1][0], ylabel=coords[1][1], aspect="equal")
+    if (~ok).any() and coords is not None:
+        xy = coords[0][~ok]
+        ax.plot(xy[:, 0], xy[:, 1] if xy.shape[1] > 1 else np.zeros(len(xy)), "x", color=ACTUATED, ms=8,
+                mew=2, label="solve failed")
+        ax.legend(fontsize=8)
+    ax.set_title(f"{task.name}: {task.metric_label} per evaluation sample\n"
+                 f"(mean {evaluation[task.metric_name]:.3g} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def animation_sweep(path: Path, sim, task, sweep: dict, geom, fps: float) -> Path | None:
+    """figures/sweep.gif: the material as the descriptor runs along task.sweep, on one fixed scale,
+    each frame titled with its descriptor and error (samples whose solve failed are left out)."""
+    import logging
+
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)  # no "Animation.save using" line
+
+    X, d, u, out, ts, ok = sweep["_solution"]
+    frames = [i for i in range(len(ts)) if ok[i]]
+    if not frames:
+        return None
+    deformed = np.asarray(X)[None] + np.asarray(u)[frames]
+    lo, hi = deformed.reshape(-1, 2).min(axis=0), deformed.reshape(-1, 2).max(axis=0)
+    pad = 0.04 * (hi - lo).max()
+    fig, ax = plt.subplots(figsize=(4.4, 4.4 * (hi - lo)[1] / (hi - lo)[0] + 0.6))
+
+    def draw(i):
+        ax.clear()
+        title = f"{task.describe(ts[i])}: error {sweep['per_sample'][i]:.3g}"
+        if getattr(task, "display", None) is not None:
+            _colour_panel(ax, task, np.asarray(X + u[i]), geom, title)
+        else:
+            draw_shape(ax, sim.disc, np.asarray(X + u[i]), title, colour=MATERIAL["deformed"])
+            _draw_target(ax, task, out[i], ts[i])
+            ax.legend(loc="lower left", fontsize=7)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        fig.suptitle(f"{task.name}, learned design; error in {task.metric_unit}", fontsize=8)
+
+    FuncAnimation(fig, draw, frames=frames).save(path, writer=PillowWriter(fps=fps), dpi=100)
+    plt.close(fig)
+    return path
 
 
 def _draw_target(ax, task, out, t):
@@ -93,8 +213,8 @@ def figure_shapes(path: Path, task, evaluation: dict, n: int = 16):
         err = evaluation["per_sample"][i]
         ax.set_title(f"error {err:.3f}" if ok[i] else "solve failed", fontsize=8)
     axes[0, 0].legend(loc="lower left", fontsize=6)
-    fig.suptitle(f"{task.name}: held-out targets and reached pores "
-                 f"(mean {task.metric_name} = {evaluation[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
+    fig.suptitle(f"{task.name}: held-out targets and reached pores\n"
+                 f"(mean {task.metric_label} = {evaluation[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
@@ -135,9 +255,8 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
                       f"digit {label}: {verdict}")
         if images:
             axes[row * 2, col].imshow(np.asarray(ts[i][1:]).reshape(28, 28), cmap="Greys")
-    name = task.metric_name.replace("_", " ")
     fig.suptitle(f"{task.name} ({'lookup table' if task.lookup else 'held-out images'}): "
-                 f"{name} = {evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
+                 f"{task.metric_label} = {evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
@@ -156,11 +275,14 @@ def figure_curves(path: Path, task, history: list):
     steps = [h["step"] for h in history]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
     ax[0].plot(steps, [h["loss"] for h in history], lw=1)
-    ax[0].set(xlabel="step", ylabel="training loss", yscale="log")
+    ax[0].set(xlabel="training step", ylabel="training loss (batch)", yscale="log", title="loss of each step")
     ev = [(h["step"], h[task.metric_name]) for h in history if task.metric_name in h]
     if ev:
         ax[1].plot(*zip(*ev), "o-", ms=3)
-    ax[1].set(xlabel="step", ylabel=f"{task.metric_name} [{task.metric_unit}]")
+    ax[1].set(xlabel="training step", ylabel=f"{task.metric_label}\n[{task.metric_unit}]",
+              title="on the evaluation set")
+    for a in ax:
+        a.title.set_fontsize(9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)

@@ -181,8 +181,10 @@ class Trainer:
                  if big else "no parameter group diverged; the likely cause is the task's loss at these "
                                  "parameters or a learning rate too large")
         return f"step {step}: {what}. {cause} ({rates}). Lower optim.lr and start a new run."
-    def evaluate(self) -> dict:
-        ts = self.task.eval_set()
+
+    def evaluate(self, ts=None) -> dict:
+        """The metric on the task's evaluation set (or on descriptors `ts`) at the current parameters."""
+        ts = self.task.eval_set() if ts is None else ts
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
         ok = np.asarray(info.status) == CONVERGED
         metric = np.asarray(jax.vmap(self.task.metric)(out, ts))
