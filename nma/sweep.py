@@ -1,0 +1,56 @@
+"""A table across the jobs of a `--multirun` sweep, written when the sweep ends (any launcher).
+
+Hydra calls `SweepSummary.on_multirun_end` in the launching process once every job has returned
+(conf/config.yaml registers it under hydra.callbacks).  It reads each job directory's
+`.hydra/overrides.yaml` and `metrics.json` and writes `summary.json` and `summary.md` into the sweep
+directory: per job its overrides and final metric, or that it left no metrics (failed or still running).
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import yaml
+from hydra.experimental.callback import Callback
+
+log = logging.getLogger(__name__)
+
+
+def summarise(sweep_dir: Path) -> dict:
+    """Write summary.{json,md} for the job directories under `sweep_dir`; returns the JSON body."""
+    sweep_dir = Path(sweep_dir)
+    jobs = []
+    for overrides in sorted(sweep_dir.glob("*/.hydra/overrides.yaml"), key=lambda p: _job_key(p.parent.parent.name)):
+        job_dir = overrides.parent.parent
+        row = {"job": job_dir.name, "overrides": yaml.safe_load(overrides.read_text()) or [], "dir": str(job_dir)}
+        metrics = job_dir / "metrics.json"
+        if metrics.exists():
+            m = json.loads(metrics.read_text())
+            row.update({k: m.get(k) for k in ("task", "metric", "value", "unit", "no_actuation", "steps",
+                                              "failed_solves")})
+        else:
+            row["value"] = None
+        jobs.append(row)
+    body = {"sweep_dir": str(sweep_dir), "jobs": jobs}
+    (sweep_dir / "summary.json").write_text(json.dumps(body, indent=1))
+    lines = ["| job | overrides | metric | value | at rest, no actuation | steps |", "|---|---|---|---|---|---|"]
+    for j in jobs:
+        value = "no metrics (failed or unfinished)" if j["value"] is None else f"{j['value']:.4g} {j['unit']}"
+        rest = "" if j.get("no_actuation") is None else f"{j['no_actuation']:.4g}"
+        lines.append(f"| {j['job']} | {' '.join(j['overrides'])} | {j.get('metric') or ''} | {value} | {rest} | "
+                     f"{j.get('steps') or ''} |")
+    (sweep_dir / "summary.md").write_text("\n".join(lines) + "\n")
+    return body
+
+
+def _job_key(name: str):
+    return (0, int(name), "") if name.isdigit() else (1, 0, name)
+
+
+class SweepSummary(Callback):
+    def on_multirun_end(self, config, **kwargs) -> None:
+        sweep_dir = Path(config.hydra.sweep.dir)
+        if sweep_dir.is_dir():
+            summarise(sweep_dir)
+            log.info("sweep summary: %s", sweep_dir / "summary.md")
