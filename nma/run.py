@@ -144,9 +144,14 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
                                        "no_actuation": at_rest,
+                                       "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
-    log.info("final %s = %.4g %s after %d steps (the initial design at rest, no actuation: %.4g)",
-             task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"], at_rest)
+    floor = task.frozen_floor()
+    log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",
+             task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"],
+             "" if floor is None or s.trainer.freeze_geometry else
+             f"the initial design with its geometry frozen can do no better than {floor[0]:.4g} ({floor[1]}); ",
+             at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
     return evaluation

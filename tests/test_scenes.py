@@ -101,3 +101,31 @@ def test_projection_keeps_every_cell_convex():
     np.testing.assert_array_equal(design.project(small, p)["corners"], small["corners"])  # a valid step stays
     unprojected = {**p, "corners": jnp.clip(p["corners"] + step, -2.25, 2.25)}
     assert float(jnp.min(design.corner_turns(unprojected))) < 0  # the box alone would have folded a cell
+
+
+@pytest.mark.parametrize("task, actuations", [("translation", [[3.0, -1.0], [-2.0, -3.5]]),
+                                              ("rotation_double", [[2.5, -1.0], [-1.5, 2.0]])])
+def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):
+    """The frozen initial design's floor rests on a symmetry: its pointer moves only sideways
+    (translation), its stick does not turn (rotation), whatever the actuations."""
+    import jax.numpy as jnp
+
+    from nma.mechanics.material import material
+    from nma import tasks  # noqa: F401  (registers the tasks)
+    from nma.registry import TASKS
+    from nma.schema import TASK_SCHEMAS, build
+
+    sim = simulator(task, quad_points=3)
+    t = TASKS.get(task)(build(TASK_SCHEMAS[task], config.load("task", task)), sim)
+    geom = sim.init_params()
+    X = sim.reference_points(geom)
+    for d in actuations:
+        sol = sim.solve(geom, jnp.asarray(d), material(0.07, 0.3))
+        out = np.asarray(t.observe(sim, geom, sol.X, sol.u))
+        assert np.max(np.abs(sol.u)) > 0.5  # it does deform
+        if task == "translation":
+            assert abs(out[1] - float(t.start[1])) < 1e-9
+        else:
+            np.testing.assert_allclose(out[1, 1] - out[0, 1], 0.0, atol=1e-9)  # the stick stays level
+    floor, why = t.frozen_floor()
+    assert why and 0.0 < floor <= t.rest_metric(sim) + 1e-12  # doing nothing is no better than the floor

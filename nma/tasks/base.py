@@ -75,6 +75,11 @@ class Task:
 
     sweep_fps = 1.0  # frames per second of the animation: slow for a sequence of separate samples
 
+    def frozen_floor(self) -> tuple[float, str] | None:
+        """The best metric the initial design can reach with its geometry frozen, where symmetry fixes
+        it, with the reason in words; None where it is not known in closed form."""
+        return None
+
     def rest_metric(self, sim) -> float:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
         import jax

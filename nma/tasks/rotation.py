@@ -53,6 +53,12 @@ class Rotation(Task):
     def coordinates(self, ts):
         return np.degrees(np.asarray(ts)), ["target angle [degrees]"]
 
+    def frozen_floor(self):
+        """The initial design and its actuators are mirror-symmetric about both axes through the centre,
+        so with the geometry frozen the stick cannot turn: the error is the target angle itself."""
+        return (float(np.mean(np.degrees(np.abs(np.asarray(self._eval))))),
+                "the mirror-symmetric initial design cannot turn the stick")
+
     def sweep(self, n):
         """From the smallest angle to the largest and back."""
         up = jnp.linspace(self.lo, self.hi, (n + 1) // 2 + 1)

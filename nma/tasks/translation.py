@@ -45,6 +45,13 @@ class Translation(Task):
     def coordinates(self, ts):
         return np.asarray(ts), ["target offset x [length units]", "target offset y [length units]"]
 
+    def frozen_floor(self):
+        """The initial design and its two horizontal actuators are mirror-symmetric about the pointer's
+        row, so with the geometry frozen the pointer moves sideways only: at best the vertical offset of
+        each target stays."""
+        return (float(np.mean(np.abs(np.asarray(self._eval)[:, 1]))),
+                "the pointer of the mirror-symmetric initial design moves sideways only")
+
     def sweep(self, n):
         """Once round the circle inscribed in the target box."""
         phi = jnp.linspace(0.0, 2.0 * jnp.pi, n, endpoint=False)

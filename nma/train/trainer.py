@@ -12,6 +12,7 @@ which no sample converges stops the run with the solver's error.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -228,10 +229,17 @@ class Trainer:
     def fit(self, on_eval=None) -> dict:
         if self.cfg.resume != "false":
             self.try_resume()
-        bar = None
+        bar, quiet = None, contextlib.nullcontext()
         if self.cfg.progress and self.world.is_root:
             from tqdm.auto import tqdm
+            from tqdm.contrib.logging import logging_redirect_tqdm
+
             bar = tqdm(total=self.cfg.steps, initial=self.state["step"], desc=self.task.name, unit="step")
+            quiet = logging_redirect_tqdm()  # log lines above the bar, not through it
+        with quiet:
+            return self._loop(bar, on_eval)
+
+    def _loop(self, bar, on_eval) -> dict:
         last_eval = None
         while self.state["step"] < self.cfg.steps:
             rec = self.step()
@@ -241,6 +249,9 @@ class Trainer:
                     ev = self.evaluate()
                     rec[self.task.metric_name] = ev[self.task.metric_name]
                     last_eval = ev
+                    log.info("step %d: %s = %.4g %s on the evaluation set (%d failed solves)", step,
+                             self.task.metric_name, ev[self.task.metric_name], self.task.metric_unit,
+                             ev["failed_solves"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)

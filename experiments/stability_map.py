@@ -1,0 +1,191 @@
+"""Stability map: does the solver reach equilibrium at the extremes a user can ask for?
+
+    python experiments/stability_map.py                      # every scene -> outputs/studies/stability/
+    python experiments/stability_map.py --scenes translation --quick
+
+Per scene, every combination of
+  material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
+  radii      at the lower bound, the middle, the upper bound, and a random non-uniform field,
+  corners    at rest and, where the scene moves corners, at their box limits (alternate nodes
+             pushed to opposite corners of their box, projected onto convex cells as training does),
+  direction  each sign pattern of the actuations (all of them up to 4 actuations; otherwise both
+             uniform ones and 6 random ones), at full magnitude d_max: the solver's load stepping
+             ramps the actuation from 0, so "load reached" is how far along the ray it got,
+records the outcome (converged, or the solver's status with the load factor reached and the last
+residual), iterations, load steps, cuts and wall time, and checks that nothing returned is NaN.
+Writes <scene>.json (every solve), <scene>.md (tables) and <scene>.png (heat maps: fraction of
+directions converged per material and design, and the time per solve relative to the scene's median
+converged solve).  Fidelity and solver are the scene's training defaults (paper fidelity, PARDISO).
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
+NUS = [0.3, 0.4, 0.45, 0.49, 0.499]
+E = 0.07
+
+
+def directions(n_act: int, rng) -> np.ndarray:
+    if n_act <= 4:
+        return np.array(list(itertools.product([1.0, -1.0], repeat=n_act)))
+    uniform = [np.ones(n_act), -np.ones(n_act)]
+    return np.array(uniform + [rng.choice([-1.0, 1.0], n_act) for _ in range(6)])
+
+
+def designs(sim, rng) -> dict[str, dict]:
+    """Named geometries at the extremes of the design box (and one inside it)."""
+    import jax.numpy as jnp
+
+    design = sim.disc.design
+    init = sim.init_params()
+    bounds = design.bounds()
+    out = {}
+    if "radii" in init:
+        lo, hi = bounds["radii"]
+        for name, value in (("radii at lower bound", lo), ("radii in the middle", 0.5 * (lo + hi)),
+                            ("radii at upper bound", hi)):
+            out[name] = {**init, "radii": jnp.full_like(init["radii"], value)}
+        out["random radii"] = {**init, "radii": jnp.asarray(rng.uniform(lo, hi, init["radii"].shape))}
+    else:
+        out["initial design"] = init
+    if "corners" in init:
+        box = bounds["corners"][1]
+        nodes = design.nodes[design.movable]
+        parity = ((np.round(nodes[:, 0]) + np.round(nodes[:, 1])) % 2 * 2 - 1)[:, None]  # alternate nodes
+        pushed = {**out["radii in the middle"], "corners": jnp.asarray(parity * np.array([box, box]))}
+        projected = design.project(pushed, out["radii in the middle"])
+        used = float(np.max(np.abs(np.asarray(projected["corners"])))) / box
+        out[f"corners at box limits ({used:.0%} of the box kept cells convex)"] = projected
+    return out
+
+
+def run_scene(scene: str, quick: bool, seed: int = 0) -> dict:
+    import jax
+    import jax.numpy as jnp
+
+    from nma import config
+    from nma.mechanics.material import material
+    from nma.simulator import Simulator
+    from nma.solver.newton import CONVERGED, STATUS_TEXT
+
+    rng = np.random.default_rng(seed)
+    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"))
+    d_max = config.load("task", scene)["d_max"]
+    solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
+    nus = [NUS[0], NUS[-1]] if quick else NUS
+    geoms = designs(sim, rng)
+    if quick:
+        geoms = dict(list(geoms.items())[:2])
+    dirs = directions(sim.n_actuations, rng)[: 2 if quick else None]
+
+    X0 = sim.reference_points(sim.init_params())
+    jax.block_until_ready(solve(X0, jnp.zeros(sim.n_actuations), material(E, 0.3)))  # compile once
+    records = []
+    for (gname, geom), nu, s in itertools.product(geoms.items(), nus, dirs):
+        X = sim.reference_points(geom)
+        d = jnp.asarray(d_max * s)
+        t0 = time.perf_counter()
+        u, info = jax.block_until_ready(solve(X, d, material(E, nu)))
+        seconds = time.perf_counter() - t0
+        info = jax.tree_util.tree_map(np.asarray, info)
+        status = int(info.status)
+        finite = bool(np.all(np.isfinite(np.asarray(u))) and np.isfinite(info.residual) and np.isfinite(info.load))
+        records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
+                        "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
+                        "load_reached": float(info.load), "iterations": int(info.iterations),
+                        "load_steps": int(info.load_steps), "cuts": int(info.cuts),
+                        "residual": float(info.residual), "tolerance": float(info.tolerance),
+                        "seconds": seconds, "finite": finite})
+        r = records[-1]
+        print(f"{scene:16s} {gname[:28]:28s} nu={nu:<6} d={np.round(d_max * s, 1).tolist()}: "
+              f"{'ok' if r['converged'] else 'FAILED at load ' + format(r['load_reached'], '.3f')} "
+              f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
+    return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
+            "fidelity": "paper", "solver": "pardiso", "records": records}
+
+
+def summarise(result: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recs = result["records"]
+    geoms = list(dict.fromkeys(r["design"] for r in recs))
+    nus = sorted({r["nu"] for r in recs})
+    conv_time = np.median([r["seconds"] for r in recs if r["converged"]] or [np.nan])
+    frac = np.zeros((len(geoms), len(nus)))
+    cost = np.zeros_like(frac)
+    for i, g in enumerate(geoms):
+        for j, nu in enumerate(nus):
+            cell = [r for r in recs if r["design"] == g and r["nu"] == nu]
+            frac[i, j] = np.mean([r["converged"] for r in cell])
+            cost[i, j] = np.max([r["seconds"] for r in cell]) / conv_time
+    failed = [r for r in recs if not r["converged"]]
+    result["summary"] = {"solves": len(recs), "converged": len(recs) - len(failed),
+                         "nonfinite": sum(not r["finite"] for r in recs),
+                         "median_converged_seconds": float(conv_time),
+                         "median_failed_seconds": float(np.median([r["seconds"] for r in failed])) if failed else None}
+    (out / f"{result['scene']}.json").write_text(json.dumps(result, indent=1))
+
+    s = result["summary"]
+    lines = [f"# Stability map: {result['scene']} ({result['dofs']} dofs, d_max {result['d_max']}, E {result['E']}, "
+             f"paper fidelity, PARDISO)", "",
+             f"{s['converged']} of {s['solves']} solves converged; {s['nonfinite']} returned non-finite values; "
+             f"median time {s['median_converged_seconds']:.2f} s converged"
+             + (f", {s['median_failed_seconds']:.2f} s failed" if failed else "") + ".", "",
+             "| design | " + " | ".join(f"nu {nu}" for nu in nus) + " |", "|---|" + "---|" * len(nus)]
+    for i, g in enumerate(geoms):
+        lines.append(f"| {g} | " + " | ".join(f"{frac[i, j]:.0%}" for j in range(len(nus))) + " |")
+    if failed:
+        lines += ["", "Failures:", "", "| design | nu | d | status | load reached | residual | iterations | s |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r in failed:
+            lines.append(f"| {r['design']} | {r['nu']} | {np.round(r['d'], 2).tolist()} | {r['status']} | "
+                         f"{r['load_reached']:.3f} | {r['residual']:.2e} | {r['iterations']} | {r['seconds']:.2f} |")
+    (out / f"{result['scene']}.md").write_text("\n".join(lines) + "\n")
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 1.2 + 0.6 * len(geoms)), sharey=True)
+    for ax, data, title, cmap, vmax in ((axes[0], frac, "fraction of directions converged", "RdYlGn", 1.0),
+                                        (axes[1], cost, "slowest solve / median converged solve", "magma_r", None)):
+        im = ax.imshow(data, cmap=cmap, vmin=0.0, vmax=vmax, aspect="auto")
+        for (i, j), v in np.ndenumerate(data):
+            ax.text(j, i, f"{v:.0%}" if vmax else f"{v:.1f}x", ha="center", va="center", fontsize=8)
+        ax.set_xticks(range(len(nus)), [f"nu {nu}" for nu in nus])
+        ax.set_title(title, fontsize=9)
+        fig.colorbar(im, ax=ax, fraction=0.04)
+    axes[0].set_yticks(range(len(geoms)), geoms, fontsize=8)
+    fig.suptitle(f"{result['scene']}: actuations at d_max = {result['d_max']} along each sign pattern", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / f"{result['scene']}.png", dpi=120)
+    plt.close(fig)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
+    ap.add_argument("--quick", action="store_true", help="2 materials, 2 designs, 2 directions (a smoke run)")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "stability")
+    args = ap.parse_args()
+    from nma.runtime import configure_jax
+
+    configure_jax()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for scene in args.scenes:
+        result = run_scene(scene, args.quick)
+        summarise(result, args.out)
+        s = result["summary"]
+        print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "
+              f"{args.out / scene}.{{json,md,png}}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
