@@ -181,7 +181,7 @@ class NewtonOptions(Schema):
 
 @dataclass
 class SolverConfig(NewtonOptions):
-    linear: str = "pardiso"   # a linear backend registered in nma.solver.linear (pardiso, superlu, dense)
+    linear: str = "auto"   # a linear backend registered in nma.solver.linear (auto, pardiso, superlu, dense)
     workers: int = bounded(0, "[0, 1024]", doc="threads solving a batch's samples at once; 0 = one per core")
 
 

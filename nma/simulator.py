@@ -38,7 +38,7 @@ class Solution:
 
 
 class Simulator:
-    def __init__(self, disc: Discretisation, linear: str = "pardiso", options: NewtonOptions = NewtonOptions(),
+    def __init__(self, disc: Discretisation, linear: str = "auto", options: NewtonOptions = NewtonOptions(),
                  workers: int = 0):
         self.disc = disc
         self.options = options

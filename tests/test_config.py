@@ -17,7 +17,7 @@ BAD_RUN = [
     ("material.E=abc", "material.E must be a finite number, got 'abc'"),
     ("+solver.foo=1", "solver.foo is not a known setting"),
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
-    ("solver=foo", "solver=foo is unknown; choose one of ['dense', 'pardiso', 'superlu']"),
+    ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
     ("scene=translaton", "scene=translaton is unknown; choose one of"),
     ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_single', 'shape_matching', 'translation']"),
     ("optim.lr=inf", "optim.lr must be a finite number in (0, inf), got inf"),
@@ -38,7 +38,7 @@ BAD_SIMULATE = [
     ("actuation=[1.0]", "actuation must have 2 entries for scene translation, got 1: [1.0]"),
     ("actuation=[1.0,nan]", "actuation must be finite numbers"),
     ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
-    ("solver.linear=cholesky", "solver.linear must be one of ['dense', 'pardiso', 'superlu'], got 'cholesky'"),
+    ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
     ("scene.corner_box=2.5", "scene.corner_box must be < half the smallest cell (2.5), got 2.5"),
 ]
 

@@ -71,7 +71,7 @@ def test_every_config_option_composes_and_validates(group):
     ("scene.radii_bounds=[0.1,1.5]", "scene.radii_bounds must be a list of numbers, each in (0, 1)"),
     ("optim.lr=-0.1", "optim.lr must be a finite number in (0, inf), got -0.1"),
     ("trainer.steps=0", "trainer.steps must be an integer in [1, 10000000], got 0"),
-    ("solver.linear=cholesky", "solver.linear must be one of ['dense', 'pardiso', 'superlu']"),
+    ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu']"),
     ("optim.lr_scale.radii=-1", "optim.lr_scale.radii must be a finite number in [0, inf)"),
 ])
 def test_bad_config_names_field_and_range(override, message):

@@ -60,6 +60,15 @@ def test_bad_actuation_is_rejected_before_work(simulator):
         material(0.07, 0.5)
 
 
+def test_auto_backend_is_pardiso_where_mkl_installs_and_superlu_elsewhere(monkeypatch):
+    from nma.solver import linear
+
+    disc = discretise(scene_from_config(SMALL))
+    assert linear.make_backend("auto", disc).name == "pardiso"  # x86-64 with pypardiso, as in CI
+    monkeypatch.setattr(linear, "pardiso_available", lambda: False)
+    assert linear.make_backend("auto", disc).name == "superlu"
+
+
 def test_backends_agree_and_dense_batches_under_vmap():
     disc = discretise(scene_from_config(SMALL))
     mat = material(0.07, 0.3)
