@@ -174,6 +174,10 @@ class NewtonOptions(Schema):
     step_fraction: float = bounded(0.9, "(0, 1]", doc="a step may go this fraction of the way to J = 0")
     armijo: float = bounded(1e-4, "(0, 0.5]")
     max_backtracks: int = bounded(40, "[1, 1000]")
+    damped_step: float = bounded(0.1, "(0, 1]", doc="a corrector step shorter than this fraction of the Newton "
+                                                    "step is heavily damped")
+    max_damped_steps: int = bounded(3, "[1, 100000]", doc="heavily damped corrector steps in a row that cut the "
+                                                        "load step at once (Newton's model does not hold there)")
 
     def newton(self) -> "NewtonOptions":
         return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})

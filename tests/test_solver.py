@@ -122,3 +122,19 @@ def test_jacobian_through_the_host_solver_matches_row_by_row_gradients():
     rows = np.stack([jax.grad(lambda d, k=k: centre(d)[k])(d) for k in range(2)])
     np.testing.assert_allclose(jac, rows, rtol=1e-10, atol=1e-12)
     assert sim.backend.stats["adjoint_refactorisations"] == 0
+
+
+def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(simulator):
+    """Nearly incompressible (nu = 0.499) at full actuation: the first load steps are beyond Newton's
+    reach, and the line search keeps cutting their corrector steps to a few percent.  Cutting such a
+    step after 3 of them in a row (instead of after max_step_iters) reaches the same equilibrium in
+    fewer iterations."""
+    base = simulator("translation", quad_points=3)
+    d, mat = jnp.array([4.0, 4.0]), material(0.07, 0.499)
+    sols = {}
+    for name, damped in (("fail fast", 3), ("patient", 100000)):
+        sim = Simulator(base.disc, "pardiso", NewtonOptions(max_damped_steps=damped))
+        sols[name] = sim.solve(sim.init_params(), d, mat)
+    assert sols["fail fast"].info.cuts >= 1  # the case does cut load steps
+    assert sols["fail fast"].info.iterations < sols["patient"].info.iterations
+    np.testing.assert_allclose(sols["fail fast"].x, sols["patient"].x, atol=1e-8)

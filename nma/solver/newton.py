@@ -6,9 +6,11 @@ Each iteration assembles the force and element tangents at the current state and
              exact J > 0 step bound allows (the increment is cut to what keeps every point valid);
   corrector  (at fixed load): Newton step with backtracking Armijo line search on the energy, the
              step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step).
-A load step fails when its line search cannot decrease the energy or it takes too many iterations;
-then the state returns to the last converged load and the increment is halved.  Increments grow
-after each converged step.  Non-descent directions (an indefinite Hessian) are retried with a
+A load step fails when its line search cannot decrease the energy, when several corrector steps in a
+row are cut to a small fraction of the Newton step (the increment is beyond the reach of Newton's
+model: fail fast), or when it takes too many iterations; then the state returns to the last converged
+load and the increment is halved.  Increments grow after a load step that converged within a third
+of max_step_iters (a slow one says the next should be no larger).  Non-descent directions (an indefinite Hessian) are retried with a
 diagonal shift.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of
 the linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.
 """
@@ -60,6 +62,7 @@ class _State(NamedTuple):
     k_ref: jnp.ndarray
     rnorm: jnp.ndarray
     history: jnp.ndarray
+    damped: jnp.ndarray   # heavily damped corrector steps in a row in this load step
 
 
 class Equations:
@@ -125,7 +128,7 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat) -> tuple[Problem, _Sta
     init = _State(zero, scalar(0.0), zero, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   jnp.where(finite, RUNNING, NONFINITE_INPUT), scalar(0.0), scalar(1.0), scalar(jnp.inf),
-                  jnp.full(opts.max_iters, jnp.nan, X.dtype))
+                  jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0))
     return Problem(quad, eqs.A @ d, mat, jnp.max(jnp.ptp(X, axis=0))), init
 
 
@@ -148,7 +151,8 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Lin
     finished = step_done & (s.lam >= 1.0)
     lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
     u_conv = jnp.where(step_done, s.u, s.u_conv)
-    dlam = jnp.where(step_done, jnp.minimum(s.dlam * opts.grow, 1.0 - s.lam), s.dlam)
+    quick = s.step_it <= opts.max_step_iters // 3  # a slow step: the next one no larger
+    dlam = jnp.where(step_done, jnp.minimum(s.dlam * jnp.where(quick, opts.grow, 1.0), 1.0 - s.lam), s.dlam)
     predictor = s.predictor | step_done
     status = jnp.where(finished, CONVERGED, s.status)
     rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * p.u_D) - dlam * f_free), -g)
@@ -217,9 +221,12 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
 
     a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
     step_it = jnp.where(predictor, 0, s.step_it + 1)
+    # corrector steps that the line search or the J > 0 bound keep cutting short, several in a row,
+    # mean the increment is too large for Newton's model: cut it now rather than after max_step_iters
+    damped = jnp.where(predictor | ~ok, 0, jnp.where(a < opts.damped_step, s.damped + 1, 0))
     # a failed load step returns to the last converged state with half the increment;
     # a non-descent direction is retried with a larger diagonal shift first
-    cut = (descent & ~ok) | (step_it >= opts.max_step_iters)
+    cut = (descent & ~ok) | (step_it >= opts.max_step_iters) | (damped >= opts.max_damped_steps)
     moved = ok & ~cut
     u_new = jnp.where(moved, s.u + a * du, jnp.where(cut, s.u_conv, s.u))
     lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
@@ -230,7 +237,8 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
         jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
     status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
-                            step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status), opts)
+                            step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
+                            damped=jnp.where(cut, 0, damped)), opts)
 
 
 def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
