@@ -118,6 +118,8 @@ def write_dxf(outline: Outline, path: Path) -> Path:
 
     logging.getLogger("ezdxf").setLevel(logging.WARNING)  # it narrates every table it creates
     doc = ezdxf.new("R2010", units=units.MM)
+    doc.layers.add("OUTLINE", color=5)  # blue
+    doc.layers.add("PORES", color=1)    # red
     msp = doc.modelspace()
     for k, loop in enumerate(outline.loops):
         ctrl, knots = loop_spline(loop)
