@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: help install test test-all bench bench-train simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-train study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -19,6 +19,9 @@ bench:              ## solver speed per scene and the fidelity sweep -> outputs/
 
 bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
 	$(PYTHON) experiments/bench_train.py
+
+study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
+	$(PYTHON) experiments/stability_map.py
 
 simulate:           ## one forward solve of the translation scene
 	$(PYTHON) -m nma.simulate scene=translation actuation=[1.0,-0.5]

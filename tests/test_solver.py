@@ -17,16 +17,13 @@ SMALL = {"name": "small", "cells": ["PP", "PP"], "pinned": [[0, 0], [10, 0], [10
 
 @pytest.mark.parametrize("nu", [0.3, 0.45, 0.49, 0.499])
 @pytest.mark.parametrize("sign", [1.0, -1.0])
-def test_extremes_converge_or_fail_clearly(simulator, nu, sign):
-    """Translation at +-d_max (4.0): a converged answer is finite and balanced; otherwise a clear error."""
+def test_extremes_converge(simulator, nu, sign):
+    """Translation at +-d_max (4.0), up to nearly incompressible: the structure has an equilibrium
+    there and the solver reaches it, finite and balanced (a failure raises SolverError: see
+    test_failure_reports_how_far_it_got)."""
     sim = simulator("translation")
     d = sign * jnp.array([4.0, -4.0])
-    try:
-        sol = sim.solve(sim.init_params(), d, material(0.07, nu))
-    except SolverError as err:
-        assert "load factor" in str(err) and "residual" in str(err)
-        assert np.isfinite(float(err.info.load)) and 0.0 <= float(err.info.load) < 1.0
-        return
+    sol = sim.solve(sim.init_params(), d, material(0.07, nu))
     assert np.all(np.isfinite(sol.u)) and np.isfinite(sol.energy)
     assert float(sol.info.residual) <= float(sol.info.tolerance)
     # the Dirichlet groups moved exactly as declared: left by (-d0, 0)
