@@ -10,10 +10,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..io.fields import write_fields  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
+from ..io.fields import write_fields  # noqa: E402
 from ..viz.plot import ACTUATED, MATERIAL, TRACKED, draw_actuated, draw_shape  # noqa: E402
 
 
@@ -65,18 +65,25 @@ def figure_designs(path: Path, sim, X_before, X_after):
     plt.close(fig)
 
 
+def _grid(xy: np.ndarray):
+    """(xs, ys, column, row) when the points (n, 2) fill a grid of at least 2 x 2 exactly, else None."""
+    xy = np.round(xy, 9)
+    xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
+    if len(xs) * len(ys) != len(xy) or min(len(xs), len(ys)) < 2:
+        return None
+    return xs, ys, np.searchsorted(xs, xy[:, 0]), np.searchsorted(ys, xy[:, 1])
+
+
 def _layout(task, ts, limit: int):
     """Which samples to draw (at most `limit`) and where: (indices, rows, cols, (row, col) per index).
     Samples on a 2D grid of descriptors keep their places (largest y on top)."""
     n = len(ts)
     pick = np.arange(n) if n <= limit else np.linspace(0, n - 1, limit).round().astype(int)
     coords = task.coordinates(np.asarray(ts)[pick])
-    if coords is not None and coords[0].shape[1] == 2:
-        xs, ys = (np.unique(np.round(coords[0][:, k], 9)) for k in range(2))
-        if len(xs) * len(ys) == len(pick):
-            col = np.searchsorted(xs, np.round(coords[0][:, 0], 9))
-            row = len(ys) - 1 - np.searchsorted(ys, np.round(coords[0][:, 1], 9))
-            return pick, len(ys), len(xs), list(zip(row, col))
+    grid = _grid(coords[0]) if coords is not None and coords[0].shape[1] == 2 else None
+    if grid is not None:
+        xs, ys, col, row = grid
+        return pick, len(ys), len(xs), list(zip(len(ys) - 1 - row, col))
     cols = int(np.ceil(np.sqrt(len(pick))))
     rows = int(np.ceil(len(pick) / cols))
     return pick, rows, cols, [divmod(j, cols) for j in range(len(pick))]
@@ -125,13 +132,14 @@ def figure_errors(path: Path, task, evaluation: dict):
         ax.set(xlabel=coords[1][0], ylabel=label, ylim=(0, None))
     else:
         x, y = coords[0].T
-        xs, ys = np.unique(x), np.unique(y)
-        if len(xs) * len(ys) == len(per) and len(xs) > 1 and len(ys) > 1:  # a grid: a map of cells
-            grid = np.full((len(ys), len(xs)), np.nan)
-            grid[np.searchsorted(ys, y[ok]), np.searchsorted(xs, x[ok])] = per[ok]
+        grid = _grid(coords[0])
+        if grid is not None:  # a map of cells
+            xs, ys, col, row = grid
+            values = np.full((len(ys), len(xs)), np.nan)
+            values[row[ok], col[ok]] = per[ok]
             edges = lambda v: np.concatenate([[1.5 * v[0] - 0.5 * v[1]], 0.5 * (v[1:] + v[:-1]),  # noqa: E731
                                               [1.5 * v[-1] - 0.5 * v[-2]]])
-            shown = ax.pcolormesh(edges(xs), edges(ys), grid, cmap="viridis", vmin=0.0)
+            shown = ax.pcolormesh(edges(xs), edges(ys), values, cmap="viridis", vmin=0.0)
         else:
             shown = ax.scatter(x[ok], y[ok], c=per[ok], s=40, cmap="viridis", vmin=0.0)
         fig.colorbar(shown, ax=ax, label=f"error [{task.metric_unit}]")
