@@ -139,14 +139,13 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
         artefacts.figure_shapes(figures / "shapes.png", task, evaluation)
     if s.trainer.fields == "final":
         artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
-    at_rest = task.rest_metric(sim)
+    at_rest, floor = task.rest_metric(sim), task.frozen_floor()
     metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
                                        "no_actuation": at_rest,
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
-    floor = task.frozen_floor()
     log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",
              task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"],
              "" if floor is None or s.trainer.freeze_geometry else

@@ -491,6 +491,15 @@ class ExportConfig(Schema):
     output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
 
 
+@dataclass
+class EvaluateConfig:
+    """`python -m nma.evaluate run=<run dir> fidelity=<preset>`: a trained run re-evaluated at another
+    discretisation (and solver), side by side with its training fidelity."""
+    run: str = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+
+
 def build(schema: type, values: Any = None):
     """A checked schema instance from a mapping (or an OmegaConf node); errors name the field."""
     from omegaconf import OmegaConf
@@ -562,5 +571,6 @@ def register() -> None:
     cs.store(name="train_schema", node=TrainConfig)
     cs.store(name="simulate_schema", node=SimulateConfig)
     cs.store(name="export_schema", node=ExportConfig)
+    cs.store(name="evaluate_schema", node=EvaluateConfig)
     for name, schema in TASK_SCHEMAS.items():
         cs.store(group="task", name=f"{name}_schema", node=schema(name=name))

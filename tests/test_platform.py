@@ -305,3 +305,20 @@ def test_fields_are_written_as_asked(tmp_path):
     assert not list((tmp_path / "all" / "fields").glob("eval_*.h5"))
     nma_run(tmp_path / "none", "logger=none", *FAST, "trainer.fields=none")
     assert (tmp_path / "none" / "metrics.json").exists() and not (tmp_path / "none" / "fields").exists()
+
+
+def test_evaluate_reproduces_the_run_and_refines_it(translation_run):
+    """nma.evaluate: the run's checkpoint at its own fidelity gives its metrics.json value back; at the
+    paper fidelity (5 Gauss points instead of 3) the same design gives a nearby value, side by side."""
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity
+
+    result = evaluate(EvaluateConfig(run=str(translation_run), fidelity=Fidelity(5, 5)))
+    logged = json.loads((translation_run / "metrics.json").read_text())
+    assert result["training_fidelity"]["metric"] == pytest.approx(logged["value"], rel=1e-9)
+    assert result["training_fidelity"]["fidelity"] == {"ctrl_per_patch": 5, "quad_points": 3}
+    refined = result["evaluated_fidelity"]
+    assert refined["fidelity"]["quad_points"] == 5 and refined["failed_solves"] == 0
+    assert result["change"] == pytest.approx(refined["metric"] - logged["value"], rel=1e-9)
+    assert 0 < abs(result["change"]) < 0.1 * logged["value"]
+    assert json.loads((translation_run / "evaluate" / "5x5.json").read_text())["change"] == result["change"]
