@@ -126,12 +126,11 @@ def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(
     reach, and the line search keeps cutting their corrector steps to a few percent.  Cutting such a
     step after 3 of them in a row (instead of after max_step_iters) reaches the same equilibrium in
     fewer iterations."""
-    base = simulator("translation", quad_points=3)
+    fast = simulator("translation", quad_points=3)  # the default options: max_damped_steps 3
+    patient = Simulator(fast.disc, "pardiso", NewtonOptions(max_damped_steps=100000))
+    assert fast.options.max_damped_steps == 3
     d, mat = jnp.array([4.0, 4.0]), material(0.07, 0.499)
-    sols = {}
-    for name, damped in (("fail fast", 3), ("patient", 100000)):
-        sim = Simulator(base.disc, "pardiso", NewtonOptions(max_damped_steps=damped))
-        sols[name] = sim.solve(sim.init_params(), d, mat)
+    sols = {name: sim.solve(sim.init_params(), d, mat) for name, sim in (("fail fast", fast), ("patient", patient))}
     assert sols["fail fast"].info.cuts >= 1  # the case does cut load steps
     assert sols["fail fast"].info.iterations < sols["patient"].info.iterations
     np.testing.assert_allclose(sols["fail fast"].x, sols["patient"].x, atol=1e-8)
