@@ -158,8 +158,11 @@ def summarise(result: dict, out: Path) -> None:
                                         (axes[1], cost, "slowest solve / median converged solve", "magma_r", None)):
         im = ax.imshow(data, cmap=cmap, vmin=0.0, vmax=vmax, aspect="auto")
         for (i, j), v in np.ndenumerate(data):
-            ax.text(j, i, f"{v:.0%}" if vmax else f"{v:.1f}x", ha="center", va="center", fontsize=8)
-        ax.set_xticks(range(len(nus)), [f"nu {nu}" for nu in nus])
+            dark = sum(im.cmap(im.norm(v))[:3]) < 1.2  # light text on dark cells
+            ax.text(j, i, f"{v:.0%}" if vmax else f"{v:.1f}x", ha="center", va="center", fontsize=8,
+                    color="white" if dark else "black")
+        ax.set_xticks(range(len(nus)), [str(nu) for nu in nus])
+        ax.set_xlabel("Poisson's ratio nu")
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, fraction=0.04)
     axes[0].set_yticks(range(len(geoms)), geoms, fontsize=8)
@@ -174,7 +177,13 @@ def main():
     ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
     ap.add_argument("--quick", action="store_true", help="2 materials, 2 designs, 2 directions (a smoke run)")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "stability")
+    ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
     args = ap.parse_args()
+    if args.replot:
+        for scene in args.scenes:
+            if (args.out / f"{scene}.json").exists():
+                summarise(json.loads((args.out / f"{scene}.json").read_text()), args.out)
+        return
     from nma.runtime import configure_jax
 
     configure_jax()
