@@ -1,0 +1,102 @@
+"""Does a trained design survive refinement?  A run re-evaluated at another discretisation.
+
+    python -m nma.evaluate run=outputs/runs/translation/<date>/<time> fidelity=fine
+    python -m nma.evaluate run=... fidelity.ctrl_per_patch=11 fidelity.quad_points=4
+
+Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set at the
+run's own training fidelity and at the one asked for, with the same code, and writes both side by side
+into <run>/evaluate/<ctrl>x<quad>.json (and one JSON line on stdout): the metric, its per-sample
+values, failed solves, the change, and the DOFs of each discretisation.  A design that only works in
+the coarse model shows here as a metric that grows under refinement.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig
+
+from . import cli
+from .config import CONF_DIR
+from .schema import EvaluateConfig, build, register
+
+register()
+
+
+def validate(cfg: DictConfig) -> EvaluateConfig:
+    from .run import load_run
+    from .solver import linear  # noqa: F401  (register backends)
+    from .registry import LINEAR_SOLVERS
+
+    settings = build(EvaluateConfig, cfg)
+    LINEAR_SOLVERS.get(settings.solver.linear)
+    load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
+    return settings
+
+
+def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
+    """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`."""
+    from .run import make_trainer
+
+    s = dataclasses.replace(settings, fidelity=fidelity, solver=solver,
+                            logger=dataclasses.replace(settings.logger, name="none"),
+                            trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
+    trainer = make_trainer(s, run / "evaluate")
+    t0 = time.perf_counter()
+    ev = trainer.evaluate()
+    task = trainer.task
+    return {"fidelity": dataclasses.asdict(fidelity), "dofs": trainer.sim.disc.n_dofs,
+            "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
+            "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
+
+
+def evaluate(s: EvaluateConfig) -> dict:
+    from .run import load_run
+
+    run = Path(s.run)
+    settings, _, checkpoint = load_run(run)
+    trained = evaluate_at(settings, run, settings.fidelity, s.solver)
+    refined = evaluate_at(settings, run, s.fidelity, s.solver)
+    a, b = np.asarray(trained["per_sample"]), np.asarray(refined["per_sample"])
+    result = {"run": str(run), "checkpoint": str(checkpoint), "task": settings.task.name,
+              "metric": trained["metric_name"], "unit": trained["unit"],
+              "training_fidelity": trained, "evaluated_fidelity": refined,
+              "change": refined["metric"] - trained["metric"],
+              "relative_change": (refined["metric"] - trained["metric"]) / abs(trained["metric"])
+              if trained["metric"] else None,
+              "largest_sample_change": float(np.max(np.abs(b - a))) if len(a) == len(b) else None}
+    out = run / "evaluate" / f"{s.fidelity.ctrl_per_patch}x{s.fidelity.quad_points}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    result["file"] = str(out)
+    return result
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="evaluate", version_base="1.3")
+def hydra_main(cfg: DictConfig) -> None:
+    import logging
+
+    with cli.exit_codes():
+        result = evaluate(validate(cfg))
+    t, e = result["training_fidelity"], result["evaluated_fidelity"]
+    logging.getLogger("nma.evaluate").info(
+        "%s: %.4g %s at the training fidelity (%d dofs), %.4g at %dx%d (%d dofs); change %+.3g", result["metric"],
+        t["metric"], result["unit"], t["dofs"], e["metric"], e["fidelity"]["ctrl_per_patch"],
+        e["fidelity"]["quad_points"], e["dofs"], result["change"])
+    brief = {k: v for k, v in result.items() if k not in ("training_fidelity", "evaluated_fidelity")}
+    brief.update(training_metric=t["metric"], evaluated_metric=e["metric"])
+    print(json.dumps(brief), flush=True)
+
+
+def main() -> None:
+    cli.preflight("evaluate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
+    hydra_main()
+
+
+if __name__ == "__main__":
+    main()
