@@ -118,7 +118,7 @@ class ShapeMatching(Task):
     def eval_set(self):
         return self._eval
 
-    metric_label = "shape error (after the best shift, scale, rotation and start point)"
+    metric_label = "shape error (best shift, scale, rotation, start)"
 
     def describe(self, t):
         return "held-out target"
