@@ -68,12 +68,6 @@ def chain(edges: list[np.ndarray]) -> list[list[np.ndarray]]:
     return loops
 
 
-def signed_area(polyline: np.ndarray) -> float:
-    """Shoelace area of a closed polyline (n, 2): positive counter-clockwise."""
-    x, y = polyline[:, 0], polyline[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-
-
 @dataclass(frozen=True)
 class Outline:
     """Closed boundary loops of a design, each (n_edges, 5, 2) edge control polygons, chained.
@@ -85,7 +79,7 @@ class Outline:
         """The outline of the control points `points` (n_points, 2) of `disc` (5 per patch)."""
         points = np.asarray(points, float)
         loops = [points[np.stack(loop)] for loop in chain(boundary_edges(disc))]
-        areas = [signed_area(sample_loop(lp, 8)) for lp in loops]
+        areas = cls(tuple(loops)).enclosed_areas()
         outer = int(np.argmax(np.abs(areas)))
         order = [outer] + [k for k in range(len(loops)) if k != outer]
         oriented = []

@@ -10,9 +10,10 @@ A load step fails when its line search cannot decrease the energy, when several 
 row are cut to a small fraction of the Newton step (the increment is beyond the reach of Newton's
 model: fail fast), or when it takes too many iterations; then the state returns to the last converged
 load and the increment is halved.  Increments grow after a load step that converged within a third
-of max_step_iters (a slow one says the next should be no larger).  Non-descent directions (an indefinite Hessian) are retried with a
-diagonal shift.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of
-the linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.
+of max_step_iters (a slow one says the next should be no larger).  Non-descent directions (an
+indefinite Hessian) are retried with a diagonal shift.  Convergence: ||g_f|| <= rtol * f_ref +
+atol * k_ref * L, where f_ref is the norm of the linearised out-of-balance force of the full load and
+k_ref * L a force scale of the structure.
 """
 from __future__ import annotations
 

@@ -193,10 +193,15 @@ class DigitalMNIST(Task):
     def describe(self, t):
         return f"digit {int(t[0])}"
 
+    @staticmethod
+    def one_of_each_digit(ts, n: int = 10) -> list[int]:
+        """Indices of the first descriptor of each digit in `ts`, digits in order (at most n)."""
+        labels = np.asarray(ts)[:, 0].astype(int)
+        return [int(np.flatnonzero(labels == c)[0]) for c in np.unique(labels)][:n]
+
     def sweep(self, n):
         """One evaluation sample of each digit, 0 to 9."""
-        labels = np.asarray(self._eval[:, 0]).astype(int)
-        return self._eval[np.asarray([np.flatnonzero(labels == c)[0] for c in np.unique(labels)][:n])]
+        return self._eval[np.asarray(self.one_of_each_digit(self._eval, n))]
 
 
 @TASKS.register("digital_mnist")

@@ -244,8 +244,7 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
     """What the material shows: the colour field (black = 1) on the deformed material, the seven
     display windows (red), for the first n evaluation samples, and their input images."""
     X, d, u, out, ts, ok = evaluation["_solution"]
-    labels = np.asarray(ts)[:, 0].astype(int)
-    pick = [int(np.flatnonzero(labels == c)[0]) for c in np.unique(labels)][:n]  # one sample of each digit
+    pick = task.one_of_each_digit(ts, n)
     k = len(pick)
     images = not task.lookup
     cols = (k + 1) // 2
