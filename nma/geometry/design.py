@@ -106,19 +106,37 @@ class GridDesign:
              "pore_radii": (lo, hi), "colours": (-np.inf, np.inf)}
         return {k: b[k] for k in self.init_params()}
 
+    def random_params(self, rng: np.random.Generator, spread: float = 0.6) -> dict[str, jnp.ndarray]:
+        """A random non-uniform design inside the box (studies measure on it, not on the symmetric
+        initial design, whose gradients vanish in symmetric directions): radii and corner moves uniform
+        over the central `spread` of their ranges, corners then kept convex, colours standard normal."""
+        init, bounds = self.init_params(), self.bounds()
+        out = {}
+        for k, v in init.items():
+            lo, hi = bounds[k]
+            if k == "colours":
+                out[k] = jnp.asarray(rng.standard_normal(v.shape))
+            else:
+                mid, half = 0.5 * (lo + hi), 0.5 * spread * (hi - lo)
+                out[k] = jnp.asarray(rng.uniform(mid - half, mid + half, v.shape))
+        return self.project(out, {**out, **({"corners": init["corners"]} if "corners" in init else {})})
+
     def corner_turns(self, params) -> jnp.ndarray:
-        """Turn (cross product of consecutive edges) at every corner of every polygon a pore is built
-        on, relative to its value in the undeformed grid: all > 0 means every cell is convex, so each
-        pore's sides see its centroid and the patches cannot fold."""
-        polygons = [self.porous] + ([self.central[None]] if len(self.central) else [])
+        """Turn (cross product of consecutive edges) at every corner of every cell, and for the central
+        pore's polygon the area of each sector (centroid, node i, node i+1), relative to their values in
+        the undeformed grid: all > 0 means every cell is convex and the central polygon star-shaped about
+        its centroid, so each pore's sides see the centroid its patches are built towards and the patches
+        cannot fold.  (The central polygon has straight corners, where a turn is 0 at rest: its sectors
+        are the measure that is positive there.)"""
+        cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
         def turns(nodes):
-            out = []
-            for poly in polygons:
-                q = nodes[poly]
-                e = jnp.roll(q, -1, axis=1) - q
-                f = jnp.roll(e, -1, axis=1)
-                out.append((e[..., 0] * f[..., 1] - e[..., 1] * f[..., 0]).ravel())
+            q = nodes[self.porous]
+            e = jnp.roll(q, -1, axis=1) - q
+            out = [cross(e, jnp.roll(e, -1, axis=1)).ravel()]
+            if len(self.central):
+                r = nodes[self.central] - jnp.mean(nodes[self.central], axis=0)
+                out.append(cross(r, jnp.roll(r, -1, axis=0)))
             return jnp.concatenate(out)
 
         return turns(self.node_positions(params)) / turns(jnp.asarray(self.nodes))
@@ -178,6 +196,9 @@ class FixedDesign:
         return {}
 
     def bounds(self) -> dict[str, tuple[float, float]]:
+        return {}
+
+    def random_params(self, rng, spread: float = 0.6) -> dict[str, jnp.ndarray]:
         return {}
 
     def project(self, params, previous) -> dict[str, jnp.ndarray]:
