@@ -10,8 +10,11 @@ A load step fails when its line search cannot decrease the energy, when several 
 row are cut to a small fraction of the Newton step (the increment is beyond the reach of Newton's
 model: fail fast), or when it takes too many iterations; then the state returns to the last converged
 load and the increment is halved.  Increments grow after a load step that converged within a third
-of max_step_iters (a slow one says the next should be no larger).  Non-descent directions (an
-indefinite Hessian) are retried with a diagonal shift.  Convergence: ||g_f|| <= rtol * f_ref +
+of max_step_iters (a slow one says the next should be no larger).  A non-descent direction means an
+indefinite Hessian (a buckled structure heading for a saddle): it is retried with a diagonal shift
+sized from the curvature the direction revealed (twice -du^T K du / du^T du) and from the shift that
+last gave descent in this solve, so that one retry, not a ramp of factorisations, usually suffices;
+the shift then decays tenfold per step back towards the pure Newton step.  Convergence: ||g_f|| <= rtol * f_ref +
 atol * k_ref * L, where f_ref is the norm of the linearised out-of-balance force of the full load and
 k_ref * L a force scale of the structure.
 """
@@ -64,6 +67,7 @@ class _State(NamedTuple):
     rnorm: jnp.ndarray
     history: jnp.ndarray
     damped: jnp.ndarray   # heavily damped corrector steps in a row in this load step
+    shift_memory: jnp.ndarray  # the last diagonal shift that gave a descent direction in this solve
 
 
 class Equations:
@@ -129,7 +133,7 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat) -> tuple[Problem, _Sta
     init = _State(zero, scalar(0.0), zero, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   jnp.where(finite, RUNNING, NONFINITE_INPUT), scalar(0.0), scalar(1.0), scalar(jnp.inf),
-                  jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0))
+                  jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0), scalar(0.0))
     return Problem(quad, eqs.A @ d, mat, jnp.max(jnp.ptp(X, axis=0))), init
 
 
@@ -213,9 +217,10 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     def predict(_):
         return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
 
+    slope = jnp.dot(g, du)
+
     def correct(_):
         # bounded line search on the energy at fixed load
-        slope = jnp.dot(g, du)
         descent = finite & (slope < 0)
         a, ok = line_search(s.u, s.lam, du, E0, slope, a0)
         return a, descent & ok, descent
@@ -233,13 +238,18 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
     dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - s.lam_conv)
     dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
+    # (K + shift) du = -g with slope = g.du >= 0: du^T K du / du^T du = -slope / |du|^2 - shift < 0 bounds
+    # the lowest eigenvalue of K from above; the retry's shift must at least exceed it
+    dd = jnp.dot(du, du)
+    rayleigh = jnp.where(finite & (dd > 0), -slope / jnp.where(dd > 0, dd, 1.0) - s.shift, 0.0)
+    retry = jnp.maximum(jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref))
     shift_new = jnp.where(cut, 0.0, jnp.where(
-        ~descent, jnp.maximum(10.0 * s.shift, 1e-8 * s.k_ref),
-        jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
+        ~descent, retry, jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
+    shift_memory = jnp.where(descent & ~predictor & (s.shift > 0), s.shift, s.shift_memory)
     status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
                             step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
-                            damped=jnp.where(cut, 0, damped)), opts)
+                            damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
 
 
 def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
