@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: help install test test-all bench bench-train study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-train study-fidelity study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -14,11 +14,14 @@ test:               ## fast tests (the CI run)
 test-all:           ## every test, the slow physics checks included
 	$(PYTHON) -m pytest -q -m ""
 
-bench:              ## solver speed per scene and the fidelity sweep -> outputs/bench/solver.json
+bench:              ## solver speed per scene at the paper discretisation, linear backends -> outputs/bench/solver.json
 	$(PYTHON) experiments/bench_solver.py
 
 bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
 	$(PYTHON) experiments/bench_train.py
+
+study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/
+	$(PYTHON) experiments/fidelity_study.py
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py

@@ -1,7 +1,9 @@
-"""Solver benchmark: speed per paper scene, and the speed/accuracy trade of the fidelity knobs.
+"""Solver benchmark: speed per paper scene at the paper's discretisation, and the linear backends.
 
     python experiments/bench_solver.py            # everything; writes outputs/bench/solver.json
     python experiments/bench_solver.py --quick    # fewer repeats (smoke run)
+
+The speed/accuracy trade of the discretisation knobs is experiments/fidelity_study.py.
 
 Each scene runs in its own process so that its peak memory is its own.  Times are wall-clock
 seconds on this machine: min and median over actuations drawn as in training, d ~ U(-2, 2).
@@ -27,15 +29,15 @@ def stats(xs):
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
-def build(scene, ctrl=5, quad=5, rtol=1e-10, linear="pardiso"):
+def build(scene, linear="pardiso"):
     from nma import config
     from nma.geometry.discretise import Fidelity, discretise
     from nma.geometry.scene import scene_from_config
     from nma.simulator import Simulator
     from nma.solver.newton import NewtonOptions
 
-    disc = discretise(scene_from_config(config.load("scene", scene)), Fidelity(ctrl, quad))
-    return Simulator(disc, linear, NewtonOptions(rtol=rtol))
+    disc = discretise(scene_from_config(config.load("scene", scene)), Fidelity(5, 5))
+    return Simulator(disc, linear, NewtonOptions(rtol=1e-10))
 
 
 def objective(sim):
@@ -103,61 +105,11 @@ def bench_scene(scene, repeats, linear="pardiso"):
     return out
 
 
-FIDELITY = [  # (ctrl_per_patch, quad_points, rtol)
-    (5, 2, 1e-10), (5, 3, 1e-10), (5, 4, 1e-10), (5, 5, 1e-10), (5, 5, 1e-8), (5, 5, 1e-6),
-    (8, 3, 1e-10), (8, 5, 1e-10)]
-FIDELITY_REFERENCE = (11, 5, 1e-12)
-
-
-def bench_fidelity(scene, repeats):
-    """Tracked-point and gradient error of each setting against the finest, next to its time."""
-    import jax
-    import jax.numpy as jnp
-
-    from nma.mechanics.material import material
-
-    rng = np.random.default_rng(1)
-    mat = material(0.07, 0.3)
-    draws = [jnp.asarray(rng.uniform(-2, 2, 2)) for _ in range(repeats)]
-
-    def run(setting):
-        sim = build(scene, *setting)
-        params = sim.init_params()
-        loss = objective(sim)
-        vg = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))
-        jax.block_until_ready(vg(params, draws[0], mat))
-        times, points, grads = [], [], []
-        for d in draws:
-            t0 = time.perf_counter()
-            (_, (u, _)), (gp, gd) = jax.block_until_ready(vg(params, d, mat))
-            times.append(time.perf_counter() - t0)
-            X = sim.reference_points(params)
-            points.append(np.concatenate([np.asarray(v) for v in sim.tracked(X, u).values()]))
-            grads.append(np.concatenate([np.asarray(gp["radii"]).ravel(), np.asarray(gd)]))
-        return np.array(times), np.array(points), np.array(grads)
-
-    _, p_ref, g_ref = run(FIDELITY_REFERENCE)
-    rows = []
-    for setting in FIDELITY:
-        times, p, g = run(setting)
-        rows.append({"ctrl_per_patch": setting[0], "quad_points": setting[1], "rtol": setting[2],
-                     "forward_grad_seconds": stats(times),
-                     "tracked_error_max": float(np.abs(p - p_ref).max()),
-                     "gradient_rel_error": float(np.max(np.linalg.norm(g - g_ref, axis=1)
-                                                        / np.linalg.norm(g_ref, axis=1)))})
-    return {"scene": scene, "reference": dict(zip(("ctrl_per_patch", "quad_points", "rtol"), FIDELITY_REFERENCE)),
-            "settings": rows}
-
-
 def child(args):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    if args.fidelity:
-        result = bench_fidelity(args.scene, args.repeats)
-    else:
-        result = bench_scene(args.scene, args.repeats, args.linear)
-    print(json.dumps(result))
+    print(json.dumps(bench_scene(args.scene, args.repeats, args.linear)))
 
 
 def spawn(*extra):
@@ -177,15 +129,14 @@ def main():
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--scene", default="translation")
     ap.add_argument("--linear", default="pardiso")
-    ap.add_argument("--fidelity", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--quick", action="store_true", help="3 repeats, no fidelity sweep")
+    ap.add_argument("--quick", action="store_true", help="3 repeats")
     ap.add_argument("--out", default=str(ROOT / "outputs" / "bench" / "solver.json"))
     args = ap.parse_args()
     if args.child:
         return child(args)
     repeats = 3 if args.quick else args.repeats
-    report = {"machine": {"cpus": os.cpu_count()}, "scenes": {}, "backends": {}, "fidelity": None}
+    report = {"machine": {"cpus": os.cpu_count()}, "scenes": {}, "backends": {}}
     print(f"{'scene':16s} {'dofs':>5s} {'build':>6s} {'first':>6s} {'forward min/med':>16s} "
           f"{'fwd+grad min/med':>17s} {'iters':>6s} {'steps':>5s} {'peak MB':>8s}")
     for scene in SCENES:
@@ -203,14 +154,6 @@ def main():
         r = spawn("--scene", "translation", "--linear", linear, "--repeats", str(repeats))
         report["backends"][linear] = {k: r[k] for k in ("forward_seconds", "forward_grad_seconds", "first_call_seconds")}
         print(f"  {linear:8s} forward {fmt(r['forward_seconds'])}   forward+grad {fmt(r['forward_grad_seconds'])}")
-    if not args.quick:
-        fid = spawn("--scene", "translation", "--fidelity", "--repeats", str(max(3, repeats // 2)))
-        report["fidelity"] = fid
-        print("\nfidelity sweep on translation (errors against ctrl 11, quad 5, rtol 1e-12):")
-        print(f"  {'ctrl':>4s} {'quad':>4s} {'rtol':>7s} {'fwd+grad min/med s':>19s} {'tracked err':>12s} {'grad rel err':>12s}")
-        for row in fid["settings"]:
-            print(f"  {row['ctrl_per_patch']:4d} {row['quad_points']:4d} {row['rtol']:7.0e} "
-                  f"{fmt(row['forward_grad_seconds']):>19s} {row['tracked_error_max']:12.2e} {row['gradient_rel_error']:12.2e}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2))

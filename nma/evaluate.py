@@ -41,7 +41,7 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
 
 def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
     """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`."""
-    from .run import make_trainer
+    from .run import fidelity_record, make_trainer
 
     s = dataclasses.replace(settings, fidelity=fidelity, solver=solver,
                             logger=dataclasses.replace(settings.logger, name="none"),
@@ -50,7 +50,7 @@ def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
     t0 = time.perf_counter()
     ev = trainer.evaluate()
     task = trainer.task
-    return {"fidelity": dataclasses.asdict(fidelity), "dofs": trainer.sim.disc.n_dofs,
+    return {"fidelity": fidelity_record(trainer.sim.disc), "dofs": trainer.sim.disc.n_dofs,
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
 
@@ -70,7 +70,8 @@ def evaluate(s: EvaluateConfig) -> dict:
               "relative_change": (refined["metric"] - trained["metric"]) / abs(trained["metric"])
               if trained["metric"] else None,
               "largest_sample_change": float(np.max(np.abs(b - a))) if len(a) == len(b) else None}
-    out = run / "evaluate" / f"{s.fidelity.ctrl_per_patch}x{s.fidelity.quad_points}.json"
+    at = refined["fidelity"]
+    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     result["file"] = str(out)

@@ -73,6 +73,13 @@ def fingerprint(s: TrainConfig) -> dict:
             "trainer": trainer}
 
 
+def fidelity_record(disc) -> dict:
+    """The discretisation a run used, and with fidelity=auto which measured setting that was and why."""
+    choice = disc.fidelity_choice
+    return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
+            "dofs": disc.n_dofs, "auto": None if choice is None else choice.record()}
+
+
 def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None):
     """The simulator, task, network, logger and trainer of checked settings (JAX set up first)."""
     from .runtime import configure_jax
@@ -98,7 +105,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
     return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                   logger, world, fingerprint(s))
+                   logger, world, fingerprint(dataclasses.replace(s, fidelity=sim.disc.fidelity)))  # as resolved
 
 
 def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
@@ -143,7 +150,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
-                                       "no_actuation": at_rest,
+                                       "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc),
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",

@@ -153,6 +153,8 @@ class Fidelity(Schema):
     prefix: ClassVar[str] = "fidelity"
     ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
     quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
+    tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
+                                         "error allowed; the scene's measured front then sets the two above")
 
     def check(self):
         if (self.ctrl_per_patch - 2) % 3:
@@ -450,6 +452,9 @@ class TrainConfig:
         if self.task.name != self.scene.name:
             raise ConfigError(f"scene={self.scene.name} does not fit task={self.task.name}; "
                               f"each task runs on its scene of the same name")
+        from .fidelity import resolve
+
+        resolve(self.fidelity, self.scene.name)  # fidelity=auto: a front for the scene, a tolerance it meets
 
 
 @dataclass

@@ -316,7 +316,9 @@ def test_evaluate_reproduces_the_run_and_refines_it(translation_run):
     result = evaluate(EvaluateConfig(run=str(translation_run), fidelity=Fidelity(5, 5)))
     logged = json.loads((translation_run / "metrics.json").read_text())
     assert result["training_fidelity"]["metric"] == pytest.approx(logged["value"], rel=1e-9)
-    assert result["training_fidelity"]["fidelity"] == {"ctrl_per_patch": 5, "quad_points": 3}
+    assert result["training_fidelity"]["fidelity"] == logged["fidelity"]
+    assert logged["fidelity"]["ctrl_per_patch"] == 5 and logged["fidelity"]["quad_points"] == 3
+    assert logged["fidelity"]["auto"] is None
     refined = result["evaluated_fidelity"]
     assert refined["fidelity"]["quad_points"] == 5 and refined["failed_solves"] == 0
     assert result["change"] == pytest.approx(refined["metric"] - logged["value"], rel=1e-9)

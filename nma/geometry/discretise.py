@@ -5,6 +5,7 @@ The result is static numpy data (topology, quadrature tables) plus one different
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import jax.numpy as jnp
@@ -14,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .bspline import DESIGN_CTRL, basis_matrix, element_tables, gauss_legendre_01, greville, refinement_operator
+from ..fidelity import Choice, resolve
 from ..schema import ConfigError, Fidelity
 from .design import make_design
 from .scene import PatchSceneSpec, SceneSpec
@@ -37,6 +39,7 @@ class Discretisation:
     external_force: np.ndarray    # (2 n_points,) dead load at full load factor
     tracked: dict = field(default_factory=dict)  # name -> (point indices (m*m,), basis weights (m*m,))
     group_points: dict = field(default_factory=dict)  # group name -> point indices
+    fidelity_choice: Choice | None = None  # fidelity=auto: which setting its scene's front gave, and why
 
     @property
     def n_patches(self) -> int:
@@ -143,6 +146,9 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
 
 
 def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()) -> Discretisation:
+    fidelity, choice = resolve(fidelity, spec.name)  # fidelity=auto: a measured setting
+    if choice is not None:
+        logging.getLogger("nma.fidelity").info(choice.reason)
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
@@ -227,7 +233,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
         spec=spec, design=design, fidelity=fidelity, n_points=n_points, patch_points=patch_points,
         representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
         quad_weights=weights, dirichlet_dofs=dirichlet, actuation_matrix=A, free_dofs=free,
-        external_force=f_ext, tracked=tracked, group_points=group_points)
+        external_force=f_ext, tracked=tracked, group_points=group_points, fidelity_choice=choice)
 
 
 __all__ = ["Fidelity", "Discretisation", "discretise", "DESIGN_CTRL"]

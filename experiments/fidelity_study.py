@@ -1,0 +1,345 @@
+"""Fidelity study: what each discretisation setting costs and how wrong it is, for every scene.
+
+    python experiments/fidelity_study.py                        # every scene (about an hour on 2 cores)
+    python experiments/fidelity_study.py --scenes translation --quick
+    python experiments/fidelity_study.py --replot               # tables and figures from the JSON only
+
+Settings: control points per patch (5, 8, 11) x Gauss points per span (2..5) at the solver's default
+Newton tolerance, and looser tolerances (1e-8, 1e-6) at the paper's (5 x 5) and the fast (5 x 3) setting.
+Per setting: DOFs; forward and forward + gradient wall time (min and median over the draws, after one
+compiling call, all settings of a scene in one process); the peak resident memory while it ran; and,
+against a reference discretisation,
+  - the error of what the task reads off the equilibrium (tracked points, the pore's boundary points,
+    the segment scores), max over the draws, in the task's units,
+  - the gradient of the task's loss with respect to each learned group (radii, corners, central radii,
+    colours: whichever the scene has) and the actuations: relative norm error and cosine similarity,
+    worst over the draws.  `gradient_error` is the worst relative error over the groups.
+Draws (fixed per scene): one random non-uniform design inside the design box (random colours for the
+display), and per draw actuations uniform in [-d_max/2, d_max/2] with a task descriptor.
+
+The reference is 14 control points per patch, 5 Gauss points, tolerance 1e-12.  It is checked by
+successive refinement: the differences 8 -> 11 -> 14 (5 Gauss points) give an observed order of
+convergence p and a Richardson estimate of the reference's own error, |q11 - q14| / ((h11/h14)^p - 1).
+
+Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
+front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
+DEFAULT_RTOL = 1e-10
+GRID = ([(c, q, DEFAULT_RTOL) for c in (5, 8, 11) for q in (2, 3, 4, 5)]
+        + [(5, q, rtol) for q in (3, 5) for rtol in (1e-8, 1e-6)])
+REFERENCE = (14, 5, 1e-12)
+QUICK_GRID = [(5, 3, DEFAULT_RTOL), (5, 5, DEFAULT_RTOL), (8, 5, DEFAULT_RTOL), (5, 5, 1e-6)]
+QUICK_REFERENCE = (11, 5, 1e-12)
+PAPER, FAST = (5, 5), (5, 3)
+
+
+class PeakMemory:
+    """The largest resident set size of this process while the block ran, sampled every 5 ms (the
+    process-wide maximum of getrusage cannot be reset between settings)."""
+
+    def __enter__(self):
+        self.page = os.sysconf("SC_PAGE_SIZE")
+        self.before = self.peak = self.rss()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def rss(self) -> int:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * self.page
+
+    def _sample(self):
+        while not self._stop.wait(0.005):
+            self.peak = max(self.peak, self.rss())
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, self.rss())
+
+
+def stats(xs) -> dict:
+    return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
+
+
+def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
+    """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws."""
+    import jax
+
+    from nma import config, tasks  # noqa: F401  (registers the tasks)
+    from nma.geometry.discretise import discretise
+    from nma.geometry.scene import scene_from_config
+    from nma.mechanics.material import material
+    from nma.registry import TASKS
+    from nma.schema import TASK_SCHEMAS, Fidelity, build
+    from nma.simulator import Simulator
+    from nma.solver.newton import CONVERGED, NewtonOptions
+
+    ctrl, quad, rtol = setting
+    with PeakMemory() as memory:
+        sim = Simulator(discretise(scene_from_config(config.load("scene", scene)), Fidelity(ctrl, quad)),
+                        "auto", NewtonOptions(rtol=rtol))
+        task = TASKS.get(scene)(build(TASK_SCHEMAS[scene], config.load("task", scene)), sim)
+        rng = np.random.default_rng(seed)  # the same draws for every setting
+        geom = sim.disc.design.random_params(rng)
+        learned = [k for k in geom if k not in task.frozen_geometry]
+        ds = rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * task.d_max
+        ts = task.sample(jax.random.PRNGKey(seed), draws)
+        mat = material(0.07, 0.3)
+
+        def loss(geom, d, t):
+            X = sim.reference_points(geom)
+            u, info = sim.equilibrium(X, d, mat)
+            out = task.observe(sim, geom, X, u)
+            return task.loss(out, t), (out, info)
+
+        forward = jax.jit(loss)
+        forward_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))
+        jax.block_until_ready(forward(geom, ds[0], ts[0]))  # compile both before timing
+        jax.block_until_ready(forward_grad(geom, ds[0], ts[0]))
+        t_fwd, t_grad, outs, grads, iters, failed = [], [], [], [], [], []
+        for i in range(draws):
+            t0 = time.perf_counter()
+            jax.block_until_ready(forward(geom, ds[i], ts[i]))
+            t_fwd.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            (_, (out, info)), (g_geom, g_d) = jax.block_until_ready(forward_grad(geom, ds[i], ts[i]))
+            t_grad.append(time.perf_counter() - t0)
+            if int(info.status) != CONVERGED:
+                failed.append({"draw": i, "load_reached": float(info.load), "residual": float(info.residual)})
+            iters.append(int(info.iterations))
+            outs.append(np.asarray(out).ravel())
+            grads.append({**{k: np.asarray(g_geom[k]).ravel() for k in learned}, "actuations": np.asarray(g_d)})
+    return {"ctrl_per_patch": ctrl, "quad_points": quad, "rtol": rtol, "dofs": sim.disc.n_dofs,
+            "forward_seconds": stats(t_fwd), "forward_grad_seconds": stats(t_grad),
+            "newton_iterations": stats(iters), "peak_memory_mb": memory.peak / 2**20,
+            "added_memory_mb": (memory.peak - memory.before) / 2**20, "failed_draws": failed,
+            "_outputs": np.array(outs), "_grads": grads}
+
+
+def compare(row: dict, ref: dict) -> dict:
+    """Errors of one setting's outputs and gradients against the reference's, worst over the draws."""
+    out_err = float(np.max(np.abs(row["_outputs"] - ref["_outputs"])))
+    groups = {}
+    for k in ref["_grads"][0]:
+        g = np.array([d[k] for d in row["_grads"]])
+        g_ref = np.array([d[k] for d in ref["_grads"]])
+        norm = np.linalg.norm(g_ref, axis=1)
+        rel = np.linalg.norm(g - g_ref, axis=1) / norm
+        cos = np.sum(g * g_ref, axis=1) / (np.linalg.norm(g, axis=1) * norm)
+        groups[k] = {"relative_error": float(np.max(rel)), "cosine": float(np.min(cos))}
+    return {"observable_error": out_err, "gradient": groups,
+            "gradient_error": max(v["relative_error"] for v in groups.values()),
+            "gradient_cosine": min(v["cosine"] for v in groups.values())}
+
+
+def observed_order(diffs: list[float], spans: list[int]) -> dict:
+    """Order p with e(h) = C h^p from the differences of three successive refinements (h = 1/spans),
+    and the Richardson estimate of the finest one's own error."""
+    from scipy.optimize import brentq
+
+    h = 1.0 / np.asarray(spans, dtype=float)
+    d1, d2 = diffs
+    if not (d1 > 0 and d2 > 0 and d1 > d2):
+        return {"differences": diffs, "order": None, "reference_error": None}
+    f = lambda p: (h[0] ** p - h[1] ** p) / (h[1] ** p - h[2] ** p) - d1 / d2
+    try:
+        p = brentq(f, 0.05, 12.0)
+    except ValueError:
+        return {"differences": diffs, "order": None, "reference_error": None}
+    return {"differences": diffs, "order": float(p), "reference_error": float(d2 / ((h[1] / h[2]) ** p - 1))}
+
+
+def convergence(rows: dict, ref: dict, ladder: list) -> dict:
+    """Successive refinement at 5 Gauss points: is the reference converged, and how far off is it?"""
+    a, b = rows[ladder[0]], rows[ladder[1]]
+    spans = [setting[0] - 2 for setting in ladder] + [ref["ctrl_per_patch"] - 2]  # knot spans per patch side
+    diff = lambda x, y, f: float(np.max([f(p, q) for p, q in zip(x, y)]))
+    out_d = [diff(a["_outputs"], b["_outputs"], lambda p, q: np.abs(p - q).max()),
+             diff(b["_outputs"], ref["_outputs"], lambda p, q: np.abs(p - q).max())]
+    result = {"spans": spans, "observable": observed_order(out_d, spans), "gradient": {}}
+    for k in ref["_grads"][0]:
+        rel = lambda x, y: float(np.max([np.linalg.norm(p[k] - q[k]) / np.linalg.norm(r[k])
+                                         for p, q, r in zip(x["_grads"], y["_grads"], ref["_grads"])]))
+        result["gradient"][k] = observed_order([rel(a, b), rel(b, ref)], spans)
+    return result
+
+
+def pareto(rows: list[dict], error: str) -> list[int]:
+    """Indices of the settings no other setting beats in both time and error."""
+    pts = [(r["forward_grad_seconds"]["median"], r[error]) for r in rows]
+    return [i for i, (t, e) in enumerate(pts)
+            if not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for t2, e2 in pts)]
+
+
+def run_scene(scene: str, quick: bool, draws: int) -> dict:
+    grid, reference = (QUICK_GRID, QUICK_REFERENCE) if quick else (GRID, REFERENCE)
+    ref = measure(scene, reference, draws)
+    print(f"{scene}: reference {reference}: {ref['dofs']} dofs, forward+gradient "
+          f"{ref['forward_grad_seconds']['median']:.2f} s", flush=True)
+    rows = {}
+    for setting in sorted(grid, key=lambda s: (s[0], s[1], -s[2])):
+        r = measure(scene, setting, draws)
+        if not r["failed_draws"]:
+            r.update(compare(r, ref))
+        rows[setting] = r
+        print(f"{scene}: {setting}: {r['dofs']} dofs, forward+gradient {r['forward_grad_seconds']['median']:.3f} s, "
+              + (f"gradient error {r['gradient_error']:.2e}, observable error {r['observable_error']:.2e}"
+                 if "gradient_error" in r else f"FAILED {r['failed_draws']}"), flush=True)
+    ladder = [s for s in ((8, 5, DEFAULT_RTOL), (11, 5, DEFAULT_RTOL)) if s in rows]
+    result = {"scene": scene, "draws": draws, "machine": {"cpus": os.cpu_count()},
+              "reference": {k: v for k, v in ref.items() if not k.startswith("_")},
+              "convergence": convergence(rows, ref, ladder) if len(ladder) == 2 else None,
+              "settings": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows.values()]}
+    return result
+
+
+def front_of(result: dict) -> list[dict]:
+    """The settings at the default Newton tolerance that converged, with the Pareto front marked."""
+    rows = [r for r in result["settings"] if r["rtol"] == DEFAULT_RTOL and "gradient_error" in r]
+    on = set(pareto(rows, "gradient_error"))
+    return [{**r, "on_front": i in on} for i, r in enumerate(rows)]
+
+
+def ship(result: dict, data_dir: Path) -> Path:
+    """What fidelity=auto reads: per setting its time and errors, the front marked."""
+    keep = ("ctrl_per_patch", "quad_points", "dofs", "forward_grad_seconds", "gradient_error",
+            "gradient_cosine", "observable_error", "on_front")
+    body = {"scene": result["scene"], "rtol": DEFAULT_RTOL, "machine": result["machine"],
+            "reference": {k: result["reference"][k] for k in ("ctrl_per_patch", "quad_points", "rtol", "dofs")},
+            "settings": [{k: r[k] for k in keep} for r in front_of(result)]}
+    data_dir.mkdir(parents=True, exist_ok=True)
+    path = data_dir / f"{result['scene']}.json"
+    path.write_text(json.dumps(body, indent=1) + "\n")
+    return path
+
+
+def report(result: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scene, ref = result["scene"], result["reference"]
+    (out / f"{scene}.json").write_text(json.dumps(result, indent=1))
+    rows = result["settings"]
+    front = {(r["ctrl_per_patch"], r["quad_points"]) for r in front_of(result) if r["on_front"]}
+    groups = list(next(r for r in rows if "gradient" in r)["gradient"])
+    lines = [f"# Fidelity study: {scene}", "",
+             f"Reference: {ref['ctrl_per_patch']} control points per patch, {ref['quad_points']} Gauss points, "
+             f"Newton tolerance {ref['rtol']:g} ({ref['dofs']} dofs, forward + gradient "
+             f"{ref['forward_grad_seconds']['median']:.2f} s). Times: min / median of {result['draws']} draws, "
+             "seconds. Errors: worst over the draws; gradient: relative norm error / cosine per group. "
+             "Front: Pareto-optimal in (forward + gradient time, gradient error) at tolerance 1e-10.", "",
+             "| ctrl | quad | rtol | dofs | forward [s] | fwd + grad [s] | peak MB | observable error | "
+             + " | ".join(f"grad {g}" for g in groups) + " | front |",
+             "|---" * (9 + len(groups)) + "|"]
+    for r in rows:
+        mark = "paper" if (r["ctrl_per_patch"], r["quad_points"]) == PAPER else (
+            "fast" if (r["ctrl_per_patch"], r["quad_points"]) == FAST else "")
+        on = r["rtol"] == DEFAULT_RTOL and (r["ctrl_per_patch"], r["quad_points"]) in front
+        cells = ([f"{r['gradient'][g]['relative_error']:.2e} / {r['gradient'][g]['cosine']:.4f}" for g in groups]
+                 if "gradient" in r else ["failed"] * len(groups))
+        lines.append(f"| {r['ctrl_per_patch']} | {r['quad_points']} | {r['rtol']:g} | {r['dofs']} | "
+                     f"{r['forward_seconds']['min']:.3f} / {r['forward_seconds']['median']:.3f} | "
+                     f"{r['forward_grad_seconds']['min']:.3f} / {r['forward_grad_seconds']['median']:.3f} | "
+                     f"{r['peak_memory_mb']:.0f} | {r.get('observable_error', float('nan')):.2e} | "
+                     + " | ".join(cells) + f" | {'yes' if on else ''} {mark} |")
+    conv = result["convergence"]
+    if conv:
+        fmt = lambda c: (f"differences {c['differences'][0]:.2e} -> {c['differences'][1]:.2e}, observed order "
+                         + (f"{c['order']:.2f}, estimated reference error {c['reference_error']:.1e}"
+                            if c["order"] else "undetermined (not in the asymptotic range)"))
+        lines += ["", f"Reference check, refinement {' -> '.join(str(s + 2) for s in conv['spans'])} control points "
+                      "(5 Gauss points):", "", f"- observable: {fmt(conv['observable'])}"]
+        lines += [f"- gradient {k} (relative): {fmt(c)}" for k, c in conv["gradient"].items()]
+    (out / f"{scene}.md").write_text("\n".join(lines) + "\n")
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, error, label in ((axes[0], "gradient_error", "gradient error (worst relative, over groups)"),
+                             (axes[1], "observable_error", "observable error (max abs)")):
+        ok = [r for r in rows if error in r and r[error] > 0]
+        on = set(pareto([r for r in ok if r["rtol"] == DEFAULT_RTOL], error))
+        base = [r for r in ok if r["rtol"] == DEFAULT_RTOL]
+        for ctrl, colour in zip((5, 8, 11), ("tab:blue", "tab:orange", "tab:green")):
+            sel = [r for r in base if r["ctrl_per_patch"] == ctrl]
+            ax.plot([r["forward_grad_seconds"]["median"] for r in sel], [r[error] for r in sel], "o",
+                    color=colour, label=f"{ctrl} control points")
+            for r in sel:
+                paper = (r["ctrl_per_patch"], r["quad_points"]) == PAPER
+                ax.annotate(f"q{r['quad_points']}" + (" (paper)" if paper else ""), (r["forward_grad_seconds"]["median"], r[error]), fontsize=7,
+                            xytext=(3, 3), textcoords="offset points")
+        loose = [r for r in ok if r["rtol"] != DEFAULT_RTOL]
+        ax.plot([r["forward_grad_seconds"]["median"] for r in loose], [r[error] for r in loose], "x", color="grey",
+                label="looser Newton tolerance")
+        pts = sorted((base[i]["forward_grad_seconds"]["median"], base[i][error]) for i in on)
+        if pts:
+            ax.step(*zip(*pts), where="post", color="black", lw=1, label="Pareto front")
+        ax.set(xscale="log", yscale="log", xlabel="forward + gradient time [s] (median)", ylabel=label)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"{scene}: speed against accuracy (reference {ref['ctrl_per_patch']} x {ref['quad_points']})",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / f"{scene}.png", dpi=120)
+    plt.close(fig)
+
+
+def child(args) -> None:
+    from nma.runtime import configure_jax
+
+    configure_jax()
+    result = run_scene(args.scenes[0], args.quick, args.draws)
+    Path(args.result).write_text(json.dumps(result))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
+    ap.add_argument("--draws", type=int, default=4, help="actuation draws per setting (timing runs)")
+    ap.add_argument("--quick", action="store_true", help="4 settings against an 11 x 5 reference (a smoke run)")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "fidelity")
+    ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
+                    help="where the measured fronts for fidelity=auto go")
+    ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--result", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        return child(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for scene in args.scenes:
+        if args.replot:
+            if (args.out / f"{scene}.json").exists():
+                report(json.loads((args.out / f"{scene}.json").read_text()), args.out)
+            continue
+        # one process per scene: its settings are timed side by side, its memory is its own
+        result_file = args.out / f".{scene}.partial.json"
+        cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
+               "--result", str(result_file), *(["--quick"] if args.quick else [])]
+        subprocess.run(cmd, check=True)
+        result = json.loads(result_file.read_text())
+        result_file.unlink()
+        report(result, args.out)
+        if not args.quick:  # a smoke run's front must not replace the shipped one
+            print(f"{scene}: front for fidelity=auto -> {ship(result, args.data)}")
+        print(f"{scene}: -> {args.out / scene}.{{json,md,png}}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

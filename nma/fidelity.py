@@ -1,0 +1,71 @@
+"""fidelity=auto: the cheapest measured discretisation whose gradients are accurate enough.
+
+experiments/fidelity_study.py measures, for each scene, every setting's forward + gradient time and its
+gradient error against a converged reference (the worst relative norm error over the learned geometry
+groups and the actuations, over random draws), and ships the results as nma/data/fidelity/<scene>.json.
+A run with `fidelity.tolerance` set takes, from its scene's file, the fastest setting whose gradient
+error is at most the tolerance; nothing is calibrated at run time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from functools import lru_cache
+from pathlib import Path
+
+from .schema import ConfigError, Fidelity
+
+DATA = Path(__file__).resolve().parent / "data" / "fidelity"
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    fidelity: Fidelity
+    tolerance: float
+    measured: dict      # the chosen setting's row of the study: time, errors, dofs
+    reason: str
+
+    def record(self) -> dict:
+        """What metrics.json keeps of the choice."""
+        return {"ctrl_per_patch": self.fidelity.ctrl_per_patch, "quad_points": self.fidelity.quad_points,
+                "tolerance": self.tolerance, "measured": self.measured, "reason": self.reason}
+
+
+@lru_cache(maxsize=None)
+def _front(path: Path) -> dict:
+    return json.loads(path.read_text())
+
+
+def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
+    """The fastest measured setting of `scene` whose gradient error is at most `tolerance`."""
+    path = data / f"{scene}.json"
+    if not path.is_file():
+        raise ConfigError(f"fidelity=auto has no measured front for scene {scene} ({path} is missing): measure it "
+                          f"with `python experiments/fidelity_study.py --scenes {scene}` or choose a preset "
+                          "(fidelity=paper, fast, fine)")
+    front = _front(path)
+    rows = front["settings"]
+    ok = [r for r in rows if r["gradient_error"] <= tolerance]
+    if not ok:
+        best = min(rows, key=lambda r: r["gradient_error"])
+        raise ConfigError(f"fidelity.tolerance must be at least {best['gradient_error']:.3g} for scene {scene}, the "
+                          f"smallest gradient error measured ({best['ctrl_per_patch']} control points, "
+                          f"{best['quad_points']} Gauss points), got {tolerance}")
+    pick = min(ok, key=lambda r: r["forward_grad_seconds"]["median"])
+    ref = front["reference"]
+    reason = (f"fidelity=auto chose {pick['ctrl_per_patch']} control points per patch, {pick['quad_points']} Gauss "
+              f"points ({pick['dofs']} dofs) for scene {scene}: the fastest measured setting "
+              f"({pick['forward_grad_seconds']['median']:.3g} s forward + gradient on {front['machine']['cpus']} "
+              f"cores) whose gradient error {pick['gradient_error']:.3g} (cosine {pick['gradient_cosine']:.4f}) "
+              f"is within fidelity.tolerance={tolerance:g}; errors against {ref['ctrl_per_patch']} x "
+              f"{ref['quad_points']}, measured by experiments/fidelity_study.py")
+    fidelity = Fidelity(pick["ctrl_per_patch"], pick["quad_points"], tolerance)
+    return Choice(fidelity, tolerance, pick, reason)
+
+
+def resolve(fidelity: Fidelity, scene: str) -> tuple[Fidelity, Choice | None]:
+    """`fidelity` itself, or with a tolerance set, the setting its scene's front picks."""
+    if fidelity.tolerance is None:
+        return fidelity, None
+    choice = choose(scene, fidelity.tolerance)
+    return choice.fidelity, choice

@@ -1,0 +1,96 @@
+"""fidelity=auto: the choice from a measured front, its errors, and the fronts that ship with nma."""
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from nma import config
+from nma.fidelity import DATA, choose
+from nma.schema import ConfigError, Fidelity
+
+SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
+
+
+def row(ctrl, quad, seconds, error):
+    return {"ctrl_per_patch": ctrl, "quad_points": quad, "dofs": 100 * ctrl, "forward_grad_seconds": {"median": seconds},
+            "gradient_error": error, "gradient_cosine": 1 - error ** 2, "observable_error": error / 10,
+            "on_front": True}
+
+
+@pytest.fixture
+def known_front(tmp_path):
+    body = {"scene": "toy", "rtol": 1e-10, "machine": {"cpus": 2},
+            "reference": {"ctrl_per_patch": 14, "quad_points": 5, "rtol": 1e-12, "dofs": 1400},
+            "settings": [row(5, 2, 0.08, 0.50), row(5, 3, 0.10, 0.35), row(5, 5, 0.15, 0.40),
+                         row(8, 3, 0.60, 0.12), row(8, 5, 1.10, 0.11), row(11, 4, 2.50, 0.03)]}
+    (tmp_path / "toy.json").write_text(json.dumps(body))
+    return tmp_path
+
+
+@pytest.mark.parametrize("tolerance, expected", [(1.0, (5, 2)), (0.4, (5, 3)), (0.2, (8, 3)), (0.115, (8, 5)),
+                                                 (0.05, (11, 4))])
+def test_auto_picks_the_fastest_setting_within_the_tolerance(known_front, tolerance, expected):
+    choice = choose("toy", tolerance, known_front)
+    assert (choice.fidelity.ctrl_per_patch, choice.fidelity.quad_points) == expected
+    assert choice.fidelity.tolerance == tolerance
+    assert choice.measured["gradient_error"] <= tolerance
+    assert f"{expected[0]} control points per patch, {expected[1]} Gauss points" in choice.reason
+
+
+def test_auto_refuses_a_tolerance_below_the_front_and_a_scene_without_one(known_front):
+    with pytest.raises(ConfigError, match=r"fidelity.tolerance must be at least 0.03 .*11 control points"):
+        choose("toy", 0.01, known_front)
+    with pytest.raises(ConfigError, match="no measured front for scene other.*fidelity_study.py --scenes other"):
+        choose("other", 0.5, known_front)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_every_scene_ships_its_measured_front(scene):
+    """make study-fidelity wrote these: the paper's setting is measured, errors fall with refinement at 5
+    Gauss points, and the marked front is exactly the Pareto-optimal set of the rows."""
+    body = json.loads((DATA / f"{scene}.json").read_text())
+    rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in body["settings"]}
+    assert (5, 5) in rows and (8, 5) in rows and (11, 5) in rows
+    assert rows[(11, 5)]["gradient_error"] < rows[(8, 5)]["gradient_error"] < rows[(5, 5)]["gradient_error"]
+    pts = [(r["forward_grad_seconds"]["median"], r["gradient_error"]) for r in body["settings"]]
+    for r, (t, e) in zip(body["settings"], pts):
+        dominated = any(t2 <= t and e2 <= e and (t2, e2) != (t, e) for t2, e2 in pts)
+        assert r["on_front"] == (not dominated)
+    assert body["reference"]["ctrl_per_patch"] > max(k[0] for k in rows)
+
+
+def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
+    """The composed config passes validation, the discretisation takes the front's choice and says why in
+    the log, and the run's metrics record both; a tolerance no setting meets fails before any work."""
+    from nma.geometry.discretise import discretise
+    from nma.geometry.scene import scene_from_config
+    from nma.run import fidelity_record, validate
+    from test_platform import compose_cfg
+
+    settings = validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none"))
+    expected = choose("translation", 0.6)
+    with caplog.at_level(logging.INFO, logger="nma.fidelity"):
+        disc = discretise(scene_from_config(settings.scene), settings.fidelity)
+    assert disc.fidelity == expected.fidelity and expected.reason in caplog.text
+    record = fidelity_record(disc)
+    assert record["auto"]["tolerance"] == 0.6 and record["dofs"] == disc.n_dofs
+    assert (record["ctrl_per_patch"], record["quad_points"]) == (expected.fidelity.ctrl_per_patch,
+                                                                 expected.fidelity.quad_points)
+    with pytest.raises(ConfigError, match="fidelity.tolerance must be at least"):
+        validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=1e-9", "logger=none"))
+    assert config.load("fidelity", "auto")["tolerance"] > 0
+    assert Fidelity().tolerance is None  # presets are what they say
+
+
+def test_random_design_stays_in_its_box_with_convex_cells():
+    from nma.geometry.design import MIN_TURN
+    from nma.geometry.scene import scene_from_config
+    from nma.geometry.design import make_design
+
+    design = make_design(scene_from_config(config.load("scene", "shape_matching")))
+    params = design.random_params(np.random.default_rng(3))
+    for k, (lo, hi) in design.bounds().items():
+        assert np.all(np.asarray(params[k]) >= lo) and np.all(np.asarray(params[k]) <= hi)
+        assert np.ptp(np.asarray(params[k])) > 0  # non-uniform
+    assert float(np.min(design.corner_turns(params))) >= MIN_TURN
