@@ -300,6 +300,29 @@ def report(result: dict, out: Path) -> None:
     plt.close(fig)
 
 
+def summary(results: list[dict], out: Path, tolerance: float = 0.1) -> str:
+    """One table over the scenes: the paper's and the fast preset's cost and error, the cheapest
+    setting within `tolerance` (what fidelity=auto picks by default), and how well the reference is known."""
+    lines = ["| scene | dofs (paper) | paper 5x5: s / grad err / cos | fast 5x3: s / grad err | "
+             f"auto (tolerance {tolerance:g}): setting, s / grad err | reference: dofs, s | reference error (Richardson) |",
+             "|---|---|---|---|---|---|---|"]
+    for result in results:
+        rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in result["settings"] if r["rtol"] == DEFAULT_RTOL}
+        cell = lambda r: f"{r['forward_grad_seconds']['median']:.3g} / {r['gradient_error']:.3f}"
+        ok = [r for r in rows.values() if r.get("gradient_error", np.inf) <= tolerance]
+        pick = min(ok, key=lambda r: r["forward_grad_seconds"]["median"]) if ok else None
+        ref, conv = result["reference"], result["convergence"] or {}
+        est = [c["reference_error"] for c in conv.get("gradient", {}).values() if c.get("reference_error") is not None]
+        lines.append(
+            f"| {result['scene']} | {rows[PAPER]['dofs']} | {cell(rows[PAPER])} / {rows[PAPER]['gradient_cosine']:.3f} | "
+            f"{cell(rows[FAST])} | " + (f"{pick['ctrl_per_patch']}x{pick['quad_points']}, {cell(pick)}" if pick else "none")
+            + f" | {ref['dofs']}, {ref['forward_grad_seconds']['median']:.3g} | "
+            + (f"gradient <= {max(est):.2g} (relative)" if est else "undetermined") + " |")
+    text = "\n".join(lines) + "\n"
+    (out / "summary.md").write_text(text)
+    return text
+
+
 def child(args) -> None:
     from nma.runtime import configure_jax
 
@@ -339,6 +362,9 @@ def main():
         if not args.quick:  # a smoke run's front must not replace the shipped one
             print(f"{scene}: front for fidelity=auto -> {ship(result, args.data)}")
         print(f"{scene}: -> {args.out / scene}.{{json,md,png}}", flush=True)
+    done = [json.loads((args.out / f"{scene}.json").read_text()) for scene in SCENES
+            if (args.out / f"{scene}.json").exists()]
+    print(summary(done, args.out))
 
 
 if __name__ == "__main__":
