@@ -303,14 +303,15 @@ def report(result: dict, out: Path) -> None:
 def summary(results: list[dict], out: Path, tolerance: float = 0.1) -> str:
     """One table over the scenes: the paper's and the fast preset's cost and error, the cheapest
     setting within `tolerance` (what fidelity=auto picks by default), and how well the reference is known."""
+    from nma.fidelity import fastest_within
+
     lines = ["| scene | dofs (paper) | paper 5x5: s / grad err / cos | fast 5x3: s / grad err | "
              f"auto (tolerance {tolerance:g}): setting, s / grad err | reference: dofs, s | reference error (Richardson) |",
              "|---|---|---|---|---|---|---|"]
     for result in results:
         rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in result["settings"] if r["rtol"] == DEFAULT_RTOL}
         cell = lambda r: f"{r['forward_grad_seconds']['median']:.3g} / {r['gradient_error']:.3f}"
-        ok = [r for r in rows.values() if r.get("gradient_error", np.inf) <= tolerance]
-        pick = min(ok, key=lambda r: r["forward_grad_seconds"]["median"]) if ok else None
+        pick = fastest_within(list(rows.values()), tolerance)
         ref, conv = result["reference"], result["convergence"] or {}
         est = [c["reference_error"] for c in conv.get("gradient", {}).values() if c.get("reference_error") is not None]
         lines.append(

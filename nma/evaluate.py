@@ -50,7 +50,7 @@ def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
     t0 = time.perf_counter()
     ev = trainer.evaluate()
     task = trainer.task
-    return {"fidelity": fidelity_record(trainer.sim.disc), "dofs": trainer.sim.disc.n_dofs,
+    return {"fidelity": fidelity_record(trainer.sim.disc),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
 
@@ -87,8 +87,8 @@ def hydra_main(cfg: DictConfig) -> None:
     t, e = result["training_fidelity"], result["evaluated_fidelity"]
     logging.getLogger("nma.evaluate").info(
         "%s: %.4g %s at the training fidelity (%d dofs), %.4g at %dx%d (%d dofs); change %+.3g", result["metric"],
-        t["metric"], result["unit"], t["dofs"], e["metric"], e["fidelity"]["ctrl_per_patch"],
-        e["fidelity"]["quad_points"], e["dofs"], result["change"])
+        t["metric"], result["unit"], t["fidelity"]["dofs"], e["metric"], e["fidelity"]["ctrl_per_patch"],
+        e["fidelity"]["quad_points"], e["fidelity"]["dofs"], result["change"])
     brief = {k: v for k, v in result.items() if k not in ("training_fidelity", "evaluated_fidelity")}
     brief.update(training_metric=t["metric"], evaluated_metric=e["metric"])
     print(json.dumps(brief), flush=True)

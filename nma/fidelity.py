@@ -36,6 +36,13 @@ def _front(path: Path) -> dict:
     return json.loads(path.read_text())
 
 
+def fastest_within(rows: list[dict], tolerance: float) -> dict | None:
+    """The measured setting with the smallest forward + gradient time whose gradient error is within
+    `tolerance`, or None."""
+    ok = [r for r in rows if r.get("gradient_error", float("inf")) <= tolerance]
+    return min(ok, key=lambda r: r["forward_grad_seconds"]["median"]) if ok else None
+
+
 def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
     """The fastest measured setting of `scene` whose gradient error is at most `tolerance`."""
     path = data / f"{scene}.json"
@@ -45,13 +52,12 @@ def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
                           "(fidelity=paper, fast, fine)")
     front = _front(path)
     rows = front["settings"]
-    ok = [r for r in rows if r["gradient_error"] <= tolerance]
-    if not ok:
+    pick = fastest_within(rows, tolerance)
+    if pick is None:
         best = min(rows, key=lambda r: r["gradient_error"])
         raise ConfigError(f"fidelity.tolerance must be at least {best['gradient_error']:.3g} for scene {scene}, the "
                           f"smallest gradient error measured ({best['ctrl_per_patch']} control points, "
                           f"{best['quad_points']} Gauss points), got {tolerance}")
-    pick = min(ok, key=lambda r: r["forward_grad_seconds"]["median"])
     ref = front["reference"]
     reason = (f"fidelity=auto chose {pick['ctrl_per_patch']} control points per patch, {pick['quad_points']} Gauss "
               f"points ({pick['dofs']} dofs) for scene {scene}: the fastest measured setting "

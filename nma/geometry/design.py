@@ -119,7 +119,8 @@ class GridDesign:
             else:
                 mid, half = 0.5 * (lo + hi), 0.5 * spread * (hi - lo)
                 out[k] = jnp.asarray(rng.uniform(mid - half, mid + half, v.shape))
-        return self.project(out, {**out, **({"corners": init["corners"]} if "corners" in init else {})})
+        at_rest = {**out, "corners": init["corners"]} if "corners" in init else out  # a valid previous design
+        return self.project(out, at_rest)
 
     def corner_turns(self, params) -> jnp.ndarray:
         """Turn (cross product of consecutive edges) at every corner of every cell, and for the central
