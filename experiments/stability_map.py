@@ -12,7 +12,9 @@ Per scene, every combination of
              uniform ones and 6 random ones), at full magnitude d_max: the solver's load stepping
              ramps the actuation from 0, so "load reached" is how far along the ray it got,
 records the outcome (converged, or the solver's status with the load factor reached and the last
-residual), iterations, load steps, cuts and wall time, and checks that nothing returned is NaN.
+residual), iterations, load steps, cuts and wall time, and checks that nothing returned is NaN; for a
+converged state, the number of negative eigenvalues of the Hessian there (PARDISO's inertia): 0 is a
+stable equilibrium, more is a saddle that a perturbation would leave.
 Writes <scene>.json (every solve), <scene>.md (tables) and <scene>.png (heat maps: fraction of
 directions converged per material and design, and the time per solve relative to the scene's median
 converged solve).  Fidelity and solver are the scene's training defaults (paper fidelity, PARDISO).
@@ -67,7 +69,7 @@ def designs(sim, rng) -> dict[str, dict]:
     return out
 
 
-def run_scene(scene: str, quick: bool, seed: int = 0) -> dict:
+def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -77,7 +79,8 @@ def run_scene(scene: str, quick: bool, seed: int = 0) -> dict:
     from nma.solver.newton import CONVERGED, STATUS_TEXT
 
     rng = np.random.default_rng(seed)
-    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"))
+    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
+                                {"escape_saddles": escape_saddles})
     d_max = config.load("task", scene)["d_max"]
     solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
     nus = [NUS[0], NUS[-1]] if quick else NUS
@@ -98,18 +101,23 @@ def run_scene(scene: str, quick: bool, seed: int = 0) -> dict:
         info = jax.tree_util.tree_map(np.asarray, info)
         status = int(info.status)
         finite = bool(np.all(np.isfinite(np.asarray(u))) and np.isfinite(info.residual) and np.isfinite(info.load))
+        # a converged state may be a saddle (e.g. a symmetric path past a buckling point): count its
+        # unstable modes from the inertia of the Hessian there
+        unstable = sim.negative_eigenvalues(X, d, material(E, nu), u) if status == CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
                         "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
                         "load_reached": float(info.load), "iterations": int(info.iterations),
                         "load_steps": int(info.load_steps), "cuts": int(info.cuts),
                         "residual": float(info.residual), "tolerance": float(info.tolerance),
-                        "seconds": seconds, "finite": finite})
+                        "seconds": seconds, "finite": finite, "negative_eigenvalues": unstable})
         r = records[-1]
         print(f"{scene:16s} {gname[:28]:28s} nu={nu:<6} d={np.round(d_max * s, 1).tolist()}: "
               f"{'ok' if r['converged'] else 'FAILED at load ' + format(r['load_reached'], '.3f')} "
+              f"{'' if not unstable else f'(saddle: {unstable} negative eigenvalues) '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
-            "fidelity": "paper", "solver": "pardiso", "records": records}
+            "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else ""),
+            "records": records}
 
 
 def summarise(result: dict, out: Path) -> None:
@@ -130,18 +138,29 @@ def summarise(result: dict, out: Path) -> None:
             frac[i, j] = np.mean([r["converged"] for r in cell])
             cost[i, j] = np.max([r["seconds"] for r in cell]) / conv_time
     failed = [r for r in recs if not r["converged"]]
+    # a failure's cost against the converged solves of the same material (the budget a user expects)
+    conv_at = {nu: np.median([r["seconds"] for r in recs if r["converged"] and r["nu"] == nu] or [np.nan]) for nu in nus}
+    saddles = [r for r in recs if r["converged"] and r.get("negative_eigenvalues")]
     result["summary"] = {"solves": len(recs), "converged": len(recs) - len(failed),
                          "nonfinite": sum(not r["finite"] for r in recs),
+                         "converged_by_nu": {str(nu): sum(r["converged"] for r in recs if r["nu"] == nu) for nu in nus},
+                         "solves_by_nu": {str(nu): sum(r["nu"] == nu for r in recs) for nu in nus},
+                         "saddles": len(saddles),
                          "median_converged_seconds": float(conv_time),
-                         "median_failed_seconds": float(np.median([r["seconds"] for r in failed])) if failed else None}
+                         "median_failed_seconds": float(np.median([r["seconds"] for r in failed])) if failed else None,
+                         "failed_over_converged_same_nu": (float(np.max([r["seconds"] / conv_at[r["nu"]] for r in failed]))
+                                                           if failed else None)}
     (out / f"{result['scene']}.json").write_text(json.dumps(result, indent=1))
 
     s = result["summary"]
     lines = [f"# Stability map: {result['scene']} ({result['dofs']} dofs, d_max {result['d_max']}, E {result['E']}, "
-             f"paper fidelity, PARDISO)", "",
+             f"paper fidelity, {result['solver']})", "",
              f"{s['converged']} of {s['solves']} solves converged; {s['nonfinite']} returned non-finite values; "
              f"median time {s['median_converged_seconds']:.2f} s converged"
-             + (f", {s['median_failed_seconds']:.2f} s failed" if failed else "") + ".", "",
+             + (f", {s['median_failed_seconds']:.2f} s failed (at most {s['failed_over_converged_same_nu']:.1f}x the "
+                f"median converged solve at the same nu)" if failed else "") + ". "
+             f"{s['saddles']} converged states are saddles (negative eigenvalues of the Hessian: unstable "
+             f"equilibria, e.g. a symmetric path past a buckling point).", "",
              "| design | " + " | ".join(f"nu {nu}" for nu in nus) + " |", "|---|" + "---|" * len(nus)]
     for i, g in enumerate(geoms):
         lines.append(f"| {g} | " + " | ".join(f"{frac[i, j]:.0%}" for j in range(len(nus))) + " |")
@@ -178,6 +197,8 @@ def main():
     ap.add_argument("--quick", action="store_true", help="2 materials, 2 designs, 2 directions (a smoke run)")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "stability")
     ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
+    ap.add_argument("--escape-saddles", action="store_true",
+                    help="solve with solver.escape_saddles (write to a separate --out to compare)")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -189,7 +210,7 @@ def main():
     configure_jax()
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
-        result = run_scene(scene, args.quick)
+        result = run_scene(scene, args.quick, args.escape_saddles)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Mapping
 
 import jax
@@ -19,7 +20,7 @@ from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_from_config
 from .schema import ConfigError, Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
-from .solver.implicit import available_cores, make_equilibrium
+from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend
 from .solver.newton import Equations, NewtonInfo, NewtonOptions, check_converged
 
@@ -43,10 +44,14 @@ class Simulator:
         self.disc = disc
         self.options = options
         self.backend = make_backend(linear, disc)
+        if options.escape_saddles and not getattr(self.backend, "reports_inertia", False):
+            raise ConfigError(f"solver.escape_saddles needs a linear solver that reports the inertia of its "
+                              f"factorisation (pardiso); solver.linear={self.backend.name} does not")
         self.equations = Equations(disc)
         # threads solving a batch's samples at once (a traced backend batches under vmap instead)
         self.workers = 1 if self.backend.traceable else workers or available_cores()
         self.equilibrium = make_equilibrium(self.equations, self.backend, options, self.workers)
+        self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
         self._solve = jax.jit(self._solve_impl)
 
     @classmethod
@@ -93,9 +98,19 @@ class Simulator:
         t0 = time.perf_counter()
         X, u, info, energy = jax.block_until_ready(self._solve(params, d, mat))
         seconds = time.perf_counter() - t0
-        check_converged(info, f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ")
+        check_converged(info, f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ",
+                        float(np.asarray(mat)[1]))
         return Solution(np.asarray(X), np.asarray(u), jax.tree_util.tree_map(np.asarray, info),
                         float(energy), seconds)
+
+    def negative_eigenvalues(self, X, d, mat, u) -> int | None:
+        """Unstable modes of an equilibrium u: the number of negative eigenvalues of the Hessian K_ff
+        there (0: a stable equilibrium, a local minimum of the energy; > 0: a saddle), or None where
+        the linear backend does not report inertia (only PARDISO's LDL^T does)."""
+        if not getattr(self.backend, "reports_inertia", False):
+            return None
+        u_free = jnp.asarray(u).reshape(-1)[self.equations.free]
+        return self.backend.negative_eigenvalues(self._tangents(X, jnp.asarray(d), mat, u_free))
 
     def tracked(self, X, u) -> dict[str, jnp.ndarray]:
         """Deformed positions of the scene's tracked material points."""

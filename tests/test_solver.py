@@ -134,3 +134,46 @@ def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(
     assert sols["fail fast"].info.cuts >= 1  # the case does cut load steps
     assert sols["fail fast"].info.iterations < sols["patient"].info.iterations
     np.testing.assert_allclose(sols["fail fast"].x, sols["patient"].x, atol=1e-8)
+
+
+def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
+    """PARDISO's LDL^T inertia against a dense eigendecomposition, on the Hessian at a converged state
+    (stable: none negative) and on the same element blocks shifted down until many are negative."""
+    from nma.solver.implicit import tangents_at
+    from nma.solver.linear import DenseBackend
+
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, "pardiso")
+    X, d, mat = sim.reference_points(sim.init_params()), jnp.array([1.0, 1.0]), material(0.07, 0.3)
+    u, info = jax.jit(sim.equilibrium)(X, d, mat)
+    assert int(info.status) == CONVERGED and sim.negative_eigenvalues(X, d, mat, u) == 0
+    kel = np.asarray(tangents_at(sim.equations, X, d, mat, np.asarray(u).reshape(-1)[sim.equations.free]))
+    shifted = kel - np.median(np.abs(np.diagonal(kel, axis1=1, axis2=2))) * np.eye(kel.shape[1])
+    expected = int(np.sum(np.linalg.eigvalsh(np.asarray(DenseBackend(disc)._matrix(jnp.asarray(shifted), 0.0))) < 0))
+    assert 0 < expected < disc.n_dofs and sim.backend.negative_eigenvalues(shifted) == expected
+
+
+def test_nearly_incompressible_failure_says_why():
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=3))
+    with pytest.raises(SolverError, match=r"material.nu = 0.499 is nearly incompressible .*solver.max_iters"):
+        sim.solve(sim.init_params(), jnp.array([2.0, 2.0]), material(0.07, 0.499))
+
+
+def test_escape_saddles_reaches_a_stable_equilibrium_below_the_saddle(simulator):
+    """Translation, uniform middle radii, d = (-4, 4): the symmetric structure buckles, and plain Newton
+    stops on the symmetric path, a saddle (the Hessian's inertia shows an unstable mode).  With
+    solver.escape_saddles it leaves along that mode to an equilibrium that is stable (no negative
+    eigenvalue, checked by PARDISO's inertia) and lower in energy."""
+    plain = simulator("translation")
+    leaving = Simulator(plain.disc, "pardiso", NewtonOptions(escape_saddles=True))
+    lo, hi = plain.disc.design.bounds()["radii"]
+    params = {**plain.init_params(), "radii": jnp.full_like(plain.init_params()["radii"], 0.5 * (lo + hi))}
+    d, mat = jnp.array([-4.0, 4.0]), material(0.07, 0.3)
+    sols = {name: sim.solve(params, d, mat) for name, sim in (("plain", plain), ("leaving", leaving))}
+    unstable = {name: plain.negative_eigenvalues(jnp.asarray(sol.X), d, mat, jnp.asarray(sol.u))
+                for name, sol in sols.items()}
+    assert unstable["plain"] >= 1 and unstable["leaving"] == 0
+    assert sols["leaving"].energy < sols["plain"].energy - 1e-3 * abs(sols["plain"].energy)
+    assert float(sols["leaving"].info.residual) <= float(sols["leaving"].info.tolerance)
+    assert leaving.backend.stats["saddles_left"] >= 1

@@ -11,6 +11,10 @@ Two drivers of the same Newton iteration (nma.solver.newton):
   batch's samples run concurrently on `workers` threads (XLA and the factorisations release the
   GIL).  Inside a traced program the host driver is one `pure_callback` per batch; each sample keeps
   its workspace (its last factor) until its adjoint, which then costs back-substitutions only.
+  With solver.escape_saddles (PARDISO: its LDL^T factorisation reports inertia), each converged load
+  step and the final state are checked for negative eigenvalues; a saddle is left along its most
+  unstable mode and Newton goes on to a stable equilibrium (if leaving fails, the solve is redone
+  without, so the option never costs convergence).
 Per-sample results do not depend on the number of threads: samples share nothing but read-only data.
 """
 from __future__ import annotations
@@ -27,9 +31,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..mechanics.energy import force_and_tangents, quadrature
-from .newton import RUNNING, Equations, NewtonOptions, advance, hold, linearise, newton_solve, result, setup
+from .newton import (CONVERGED, RUNNING, Equations, NewtonOptions, advance, hold, leave_saddle, linearise,
+                     newton_solve, result, setup)
 
 KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
+MAX_SADDLE_CHECKS = 16  # converged load steps checked for stability per solve (escape_saddles)
+SHIFT_BISECTIONS = 6  # bisections (in log shift) bracketing a saddle's lowest eigenvalue to a factor 10^(1/64)
+INVERSE_ITERATIONS = 10  # block inverse iterations for a saddle's most unstable modes
+SADDLE_BLOCK = 4  # modes sought at once (the lowest eigenvalues of a symmetric structure come in near pairs)
 
 
 def available_cores() -> int:
@@ -63,6 +72,7 @@ class HostNewton:
         self._start = jax.jit(partial(_start, eqs, opts))
         self._step = jax.jit(partial(_step, eqs, opts))
         self._hold = jax.jit(partial(hold, opts))
+        self._leave = jax.jit(partial(leave_saddle, eqs, opts))
         self._tangents = jax.jit(partial(tangents_at, eqs))
         self._pullback = jax.jit(partial(pullback, eqs))
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-newton") if self.workers > 1 else None
@@ -75,22 +85,81 @@ class HostNewton:
 
     # -- one sample
     def solve(self, X, d, mat, ws):
+        if not (self.opts.escape_saddles and self.backend.reports_inertia):
+            return self._solve(X, d, mat, ws, escape=False)
+        u, info = self._solve(X, d, mat, ws, escape=True)
+        if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
+            u, info = self._solve(X, d, mat, ws, escape=False)
+        return u, info
+
+    def _solve(self, X, d, mat, ws, escape: bool):
         kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
+        checked = set()  # converged load steps whose stability was checked (each once)
         with kernels():
             p, s, lin = self._start(X, d, mat)
         while True:
             with kernels():
-                status, next_status, shift = jax.device_get((s.status, lin.state.status, lin.state.shift))
+                status, next_status, shift, predictor, steps = jax.device_get(
+                    (s.status, lin.state.status, lin.state.shift, lin.state.predictor, lin.state.steps))
+            # a converged state (a load step's, seen at the predictor that follows it, or the final one)
+            # whose Hessian has negative eigenvalues is a saddle: leave it along its unstable mode
+            at_converged = next_status == CONVERGED or (next_status == RUNNING and predictor)
+            check = escape and at_converged and int(steps) not in checked and len(checked) < MAX_SADDLE_CHECKS
             if status != RUNNING:  # lin (of a state that ended) is not used
                 break
-            if next_status != RUNNING:
+            if next_status != RUNNING and not check:
                 s = self._hold(lin)
                 break
-            ws.factorise(lin.kel, float(shift))
+            ws.factorise(lin.kel, 0.0 if next_status != RUNNING else float(shift))
+            if check:
+                checked.add(int(steps))
+                left = self._leave_saddle(p, lin, ws) if self.backend.inertia(ws) else None
+                if left is not None:
+                    lin = left
+                    continue
+                if next_status != RUNNING:
+                    s = self._hold(lin)
+                    break
             du = ws.solve(lin.rhs)
             with kernels():
                 s, lin = self._step(p, lin, du)
         return result(s)
+
+    def _leave_saddle(self, p, lin, ws):
+        """Find the saddle's most unstable mode and step along it.  Soft stable modes of thin walls can
+        lie nearer zero than the unstable ones, so the search is shifted: the inertia of K + sigma I
+        counts the eigenvalues below -sigma, and bisection on it (in log sigma) brackets the lowest
+        eigenvalue, -sigma_hi < lambda_min <= -sigma_lo; inverse iteration with the (positive definite)
+        factor of K + sigma_hi I then amplifies the lowest modes most, and Rayleigh-Ritz on a block of
+        them gives the direction of most negative curvature. None if the energy does not fall along it."""
+        with self.backend.clock.time("saddles"):
+            kel = np.asarray(lin.kel)
+            unstable = lambda sigma: ws.factorise(kel, sigma) or self.backend.inertia(ws)
+            lo, hi = 0.0, 1e-9 * float(lin.state.k_ref)
+            while unstable(hi):
+                lo, hi = hi, 10.0 * hi
+                if hi > float(lin.state.k_ref):
+                    return None
+            for _ in range(SHIFT_BISECTIONS):
+                mid = np.sqrt(lo * hi) if lo > 0 else 0.1 * hi
+                lo, hi = (mid, hi) if unstable(mid) else (lo, mid)
+            if not (lo > 0 or unstable(0.0)):
+                return None
+            ws.factorise(kel, hi)
+            A = self.backend.pattern.matrix(kel)
+            V = np.random.default_rng(0).standard_normal((A.shape[0], SADDLE_BLOCK))  # reproducible
+            for _ in range(INVERSE_ITERATIONS):
+                V = np.linalg.qr(ws.solve(V))[0]
+            KV = np.column_stack([self.backend.matvec(A, V[:, j]) for j in range(SADDLE_BLOCK)])
+            theta, Y = np.linalg.eigh(0.5 * (V.T @ KV + KV.T @ V))
+            v, curvature = V @ Y[:, 0], float(theta[0])
+            if not curvature < 0:
+                return None
+            left, ok = self._leave(p, lin, jnp.asarray(v), curvature)
+            if not bool(ok):
+                return None
+            self.backend.count("saddles_left")
+            return left
 
     def adjoint(self, X, d, mat, u_free, u_bar, ws):
         kernels = partial(self.backend.clock.time, "adjoint_kernels")

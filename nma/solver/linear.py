@@ -101,7 +101,7 @@ class HostBackend:
     def __init__(self, disc: Discretisation):
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
-        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0}
+        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "saddles_left": 0}
         self.clock = Stopwatch()
 
     def count(self, what: str) -> None:
@@ -118,6 +118,25 @@ class HostBackend:
     # -- to be provided by a concrete backend
     def factorise(self, A, previous):  # -> object with .solve(b)
         raise NotImplementedError
+
+    reports_inertia = False  # whether a factorisation tells how many eigenvalues are negative
+
+    def inertia(self, ws: Workspace) -> int | None:
+        """The number of negative eigenvalues of the matrix ws last factorised, where reported."""
+        return None
+
+    def negative_eigenvalues(self, kel) -> int | None:
+        """How many eigenvalues of K_ff are negative (where the factorisation reports its inertia): 0 at a
+        stable equilibrium; at a saddle (an unstable equilibrium, e.g. a symmetric path past a buckling
+        point) the count of its unstable modes."""
+        if not self.reports_inertia:
+            return None
+        ws = self.workspace()
+        try:
+            ws.factorise(kel)
+            return self.inertia(ws)
+        finally:
+            self.release(ws)
 
     def matvec(self, A, x):
         return A @ x
@@ -207,6 +226,13 @@ class PardisoBackend(HostBackend):
 
     def matvec(self, A, x):
         return A @ x + A.T @ x - A.diagonal() * x
+
+    reports_inertia = True
+
+    def inertia(self, ws: Workspace) -> int:
+        """Negative eigenvalues of the last factorised matrix: the inertia of the symmetric-indefinite
+        LDL^T factorisation (iparm(23) in MKL's one-based numbering)."""
+        return int(ws.factor.solver.iparm[22])
 
 
 @LINEAR_SOLVERS.register("dense")

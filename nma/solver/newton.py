@@ -10,13 +10,17 @@ A load step fails when its line search cannot decrease the energy, when several 
 row are cut to a small fraction of the Newton step (the increment is beyond the reach of Newton's
 model: fail fast), or when it takes too many iterations; then the state returns to the last converged
 load and the increment is halved.  Increments grow after a load step that converged within a third
-of max_step_iters (a slow one says the next should be no larger).  A non-descent direction means an
-indefinite Hessian (a buckled structure heading for a saddle): it is retried with a diagonal shift
-sized from the curvature the direction revealed (twice -du^T K du / du^T du) and from the shift that
-last gave descent in this solve, so that one retry, not a ramp of factorisations, usually suffices;
-the shift then decays tenfold per step back towards the pure Newton step.  Convergence: ||g_f|| <= rtol * f_ref +
-atol * k_ref * L, where f_ref is the norm of the linearised out-of-balance force of the full load and
-k_ref * L a force scale of the structure.
+of max_step_iters (a slow one says the next should be no larger).  A non-descent corrector direction
+means an indefinite Hessian (a buckling structure): du^T K du < 0, so -du descends with negative
+curvature and the iteration line-searches along it (a snap-through makes progress instead of
+stalling); the next step is shifted by a diagonal term sized from the curvature the direction revealed
+(twice -du^T K du / du^T du) and from the shift that last gave descent in this solve, and the shift
+then decays tenfold per step back towards the pure Newton step.  A load step that keeps descending is
+given max_step_iters (60) iterations: cutting it earlier threw away snap-throughs that were about to
+converge.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of the
+linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.  The
+converged state is a stationary point of the energy, usually a minimum; where a symmetric path has
+passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts its unstable modes).
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quad
 from .assembly import element_dofs
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
+NEARLY_INCOMPRESSIBLE = 0.495  # nu from which volumetric locking, not the load path, sets Newton's pace
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
                ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
@@ -179,16 +184,11 @@ def hold(opts: NewtonOptions, lin: Linearised) -> _State:
 
 def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du) -> _State:
     """Second half of an iteration: take the step du (the solution of K_ff du = rhs)."""
-    disc = eqs.disc
     s, E0, g = lin.state, lin.energy, lin.g
     predictor, dlam = s.predictor, s.dlam
 
     def energy(u, lam):
         return eqs.potential(p.quad, u, lam, p.u_D, p.mat)
-
-    def bound(u, lam, du, dlam):
-        a = max_step(disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D))
-        return jnp.where(jnp.isnan(a), 0.0, a)
 
     def line_search(u, lam, du, E0, slope, alpha0):
         """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy)."""
@@ -211,30 +211,34 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
 
     finite = jnp.all(jnp.isfinite(du))
     du = jnp.where(finite, du, jnp.zeros_like(du))
+    slope = jnp.dot(g, du)
+    # a corrector direction that climbs (g.du > 0) has negative curvature, du^T K du < -shift |du|^2:
+    # its reverse descends with negative curvature too, so the iteration steps along -du (and the
+    # next one is shifted) instead of being spent on a retry
+    flipped = ~predictor & finite & (slope > 0)
+    step = jnp.where(flipped, -du, du)
     # the step may go a fraction of the way to J = 0 (predictor: load moves along)
-    a0 = jnp.minimum(1.0, opts.step_fraction * bound(s.u, s.lam, du, jnp.where(predictor, dlam, 0.0)))
+    a0 = jnp.minimum(1.0, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0)))
 
     def predict(_):
         return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
 
-    slope = jnp.dot(g, du)
-
     def correct(_):
         # bounded line search on the energy at fixed load
         descent = finite & (slope < 0)
-        a, ok = line_search(s.u, s.lam, du, E0, slope, a0)
-        return a, descent & ok, descent
+        a, ok = line_search(s.u, s.lam, step, E0, -jnp.abs(slope), a0)
+        return a, (descent | flipped) & ok, descent
 
     a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
     step_it = jnp.where(predictor, 0, s.step_it + 1)
     # corrector steps that the line search or the J > 0 bound keep cutting short, several in a row,
     # mean the increment is too large for Newton's model: cut it now rather than after max_step_iters
-    damped = jnp.where(predictor | ~ok, 0, jnp.where(a < opts.damped_step, s.damped + 1, 0))
+    damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
     # a failed load step returns to the last converged state with half the increment;
     # a non-descent direction is retried with a larger diagonal shift first
     cut = (descent & ~ok) | (step_it >= opts.max_step_iters) | (damped >= opts.max_damped_steps)
     moved = ok & ~cut
-    u_new = jnp.where(moved, s.u + a * du, jnp.where(cut, s.u_conv, s.u))
+    u_new = jnp.where(moved, s.u + a * step, jnp.where(cut, s.u_conv, s.u))
     lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
     dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - s.lam_conv)
     dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
@@ -250,6 +254,42 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
                             step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
                             damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
+
+
+def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam):
+    """The largest step along (du, dlam) that keeps J > 0 at every Gauss point (0 where undefined)."""
+    a = max_step(eqs.disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D))
+    return jnp.where(jnp.isnan(a), 0.0, a)
+
+
+def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, v, curvature):
+    """Move a converged state off a saddle along an unstable mode v (unit length, v^T K v = curvature
+    < 0), as far as the energy keeps falling at least half as fast as its quadratic model says (from at
+    most a tenth of the structure's size, within the J > 0 bound), and linearise there.  Newton goes
+    on from there: with the next load step, or with correctors at full load, towards the equilibrium
+    the buckled structure settles in.  Returns (linearised state, whether the energy fell)."""
+    s, E0 = lin.state, lin.energy
+    v = jnp.where(jnp.dot(lin.g, v) > 0, -v, v)  # downhill (at a saddle g ~ 0: either sign)
+    slope = jnp.dot(lin.g, v)
+    reach = 0.1 * p.size / jnp.max(jnp.abs(v))
+    a0 = jnp.minimum(reach, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, v, 0.0))
+
+    def falls(a, Ea):
+        return Ea <= E0 + 0.5 * (slope * a + 0.5 * curvature * a * a)
+
+    def body(c):
+        a, _, k = c
+        a = 0.5 * a
+        return a, eqs.potential(p.quad, s.u + a * v, s.lam, p.u_D, p.mat), k + 1
+
+    a, Ea, _ = jax.lax.while_loop(lambda c: ~falls(c[0], c[1]) & (c[2] < opts.max_backtracks), body,
+                                  (2.0 * a0, jnp.inf, 0))
+    ok = falls(a, Ea) & (a0 > 0)
+    # at full load the state continues as a corrector; below it, as the predictor it was
+    state = s._replace(u=jnp.where(ok, s.u + a * v, s.u), status=jnp.asarray(RUNNING), step_it=jnp.asarray(0),
+                       damped=jnp.asarray(0), shift=jnp.zeros_like(s.shift),
+                       predictor=s.predictor & (s.lam < 1.0))
+    return linearise(eqs, opts, p, state), ok
 
 
 def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
@@ -274,21 +314,26 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
 class SolverError(RuntimeError):
     """Newton could not reach full load: says how far it got and why."""
 
-    def __init__(self, info: NewtonInfo, context: str = ""):
+    def __init__(self, info: NewtonInfo, context: str = "", nu: float | None = None):
         status = int(info.status)
         self.info = info
         msg = (f"{context}Newton solve failed: {STATUS_TEXT.get(status, status)}; converged up to load factor "
                f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
                f"load steps and {int(info.cuts)} cuts; last residual {float(info.residual):.3e} "
                f"(tolerance {float(info.tolerance):.3e})")
+        if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
+            msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
+                    f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): a displacement-only discretisation locks there "
+                    f"and Newton needs several times the usual iterations; raise solver.max_iters (the stability "
+                    f"map's failures at nu = 0.499 converge within 500) or lower nu")
         super().__init__(msg)
 
 
-def check_converged(info: NewtonInfo, context: str = "") -> None:
+def check_converged(info: NewtonInfo, context: str = "", nu: float | None = None) -> None:
     status = np.asarray(info.status)
     if status.ndim == 0:
         if int(status) != CONVERGED:
-            raise SolverError(info, context)
+            raise SolverError(info, context, nu)
         return
     for i in np.flatnonzero(status != CONVERGED):
-        raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ")
+        raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ", nu)
