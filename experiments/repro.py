@@ -4,7 +4,9 @@
 
 Runs `python -m nma.run experiment=repro_<name>` twice (geometry learned; geometry frozen, the
 paper's control-only baseline) into outputs/repro/<name>/{joint,baseline}/ and writes
-outputs/repro/<name>/comparison.{md,json,png}.
+outputs/repro/<name>/comparison.{md,json,png}. Where conf/experiment/repro_<name>_refine.yaml exists,
+the joint design is then fine-tuned at that finer fidelity into outputs/repro/<name>/refined/, and the
+refined design is the one compared.
 """
 from __future__ import annotations
 
@@ -84,31 +86,43 @@ def main():
     if args.name == "digital_mnist":
         return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
     t0 = time.perf_counter()
-    joint = train(args.name, out / "joint", args.overrides)
+    coarse = train(args.name, out / "joint", args.overrides)
+    refine = (ROOT / "conf" / "experiment" / f"repro_{args.name}_refine.yaml").exists()
+    joint = (train(f"{args.name}_refine", out / "refined", [f"trainer.init_from={out / 'joint'}", *args.overrides])
+             if refine else coarse)
     baseline = train(args.name, out / "baseline",
                      ["trainer.freeze_geometry=true", f"trainer.steps={args.baseline_steps}", *args.overrides])
     total = time.perf_counter() - t0
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
+    fid = lambda m: f"{m['fidelity']['ctrl_per_patch']} x {m['fidelity']['quad_points']}"
     summary = {"experiment": args.name, "metric": name, "unit": unit, "joint": joint["value"],
                "baseline": baseline["value"], "joint_over_baseline": ratio,
-               "joint_steps": joint["step"], "baseline_steps": baseline["step"],
-               "joint_seconds": joint["wall_seconds"], "baseline_seconds": baseline["wall_seconds"],
+               "joint_steps": coarse["step"], "baseline_steps": baseline["step"],
+               "joint_seconds": coarse["wall_seconds"], "baseline_seconds": baseline["wall_seconds"],
                "no_actuation": joint["no_actuation"],
                "total_seconds": total, "failed_solves": [joint["failed_solves"], baseline["failed_solves"]],
                "runs": {"joint": str(out / "joint"), "baseline": str(out / "baseline")}}
+    rows = [("joint (network + geometry)", coarse)]
+    if refine:
+        summary.update(joint_before_refinement=coarse["value"], refined_steps=joint["step"],
+                       refined_seconds=joint["wall_seconds"], refined_fidelity=joint["fidelity"])
+        summary["runs"]["refined"] = str(out / "refined")
+        rows.append(("joint, refined (fine-tuned at the finer fidelity)", joint))
+    rows.append(("baseline (network only)", baseline))
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
     (out / "comparison.md").write_text(
         f"# {args.name}: learned design vs geometry-frozen baseline\n\n"
-        f"| run | steps | {name} [{unit}] | wall time [s] |\n|---|---|---|---|\n"
-        f"| joint (network + geometry) | {joint['step']} | {joint['value']:.4g} | {joint['wall_seconds']:.0f} |\n"
-        f"| baseline (network only) | {baseline['step']} | {baseline['value']:.4g} | {baseline['wall_seconds']:.0f} |\n"
-        f"| no actuation (initial design at rest) | 0 | {joint['no_actuation']:.4g} | 0 |\n\n"
+        f"| run | fidelity | steps | {name} [{unit}] | wall time [s] |\n|---|---|---|---|---|\n"
+        + "".join(f"| {label} | {fid(m)} | {m['step']} | {m['value']:.4g} | {m['wall_seconds']:.0f} |\n"
+                  for label, m in rows)
+        + f"| no actuation (initial design at rest) | {fid(joint)} | 0 | {joint['no_actuation']:.4g} | 0 |\n\n"
         f"joint / baseline = {ratio:.3f}; total {total / 60:.1f} min\n")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
-    for m, label in ((joint, "joint"), (baseline, "baseline")):
+    evals = lambda m, offset=0: [(h["step"] + offset, h[name]) for h in m["history"] if name in h]
+    for m, ev, label in ((joint, evals(coarse) + (evals(joint, coarse["step"]) if refine else []), "joint"),
+                         (baseline, evals(baseline), "baseline")):
         ax[0].plot(np.sort(m["per_sample"]), label=label)
-        ev = [(h["step"], h[name]) for h in m["history"] if name in h]
         ax[1].plot(*zip(*ev), "o-", ms=3, label=label)
     ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]", title="final error per target")
     ax[1].set(xlabel="step", ylabel=f"{name} [{unit}]", title="evaluation during training")
