@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from flax import serialization
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from nma import config
 from nma.run import validate
@@ -64,6 +65,22 @@ def test_every_config_option_composes_and_validates(group):
         validate(cfg)
     with pytest.raises(ConfigError, match="task.lookup_run must name the lookup phase's run directory"):
         validate(compose_cfg("experiment=repro_mnist_fit"))
+
+
+@pytest.mark.parametrize("name", ["rotation_single", "rotation_double"])
+def test_refinement_stage_changes_only_fidelity_and_schedule(name):
+    """repro_<name>_refine continues the joint run of repro_<name> (experiments/repro.py): the same task,
+    scene, material, model and design box, only a finer discretisation and a short, slower schedule."""
+    base = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}"))
+    refine = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}_refine"))
+    assert (refine["fidelity"]["ctrl_per_patch"], refine["fidelity"]["quad_points"]) == (8, 2)
+    assert (base["fidelity"]["ctrl_per_patch"], base["fidelity"]["quad_points"]) == (5, 2)
+    assert refine["trainer"]["steps"] < base["trainer"]["steps"] and refine["optim"]["lr"] < base["optim"]["lr"]
+    for cfg in (base, refine):
+        cfg.pop("fidelity"), cfg["optim"].pop("lr")
+        for key in ("steps", "eval_every", "checkpoint_every"):
+            cfg["trainer"].pop(key)
+    assert refine == base
 
 
 @pytest.mark.parametrize("override, message", [
