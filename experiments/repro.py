@@ -1,10 +1,11 @@
 """Reproduce a paper experiment: the joint design and the geometry-frozen baseline, then compare.
 
     python experiments/repro.py translation [--baseline-steps 150] [extra Hydra overrides ...]
+    python experiments/repro.py translation --summarise     # tables and figures again, from the runs
 
 Runs `python -m nma.run experiment=repro_<name>` twice (geometry learned; geometry frozen, the
 paper's control-only baseline) into outputs/repro/<name>/{joint,baseline}/ and writes
-outputs/repro/<name>/comparison.{md,json,png}. Where conf/experiment/repro_<name>_refine.yaml exists,
+outputs/repro/<name>/comparison.{md,json,png} (and seconds.json, the runs' wall times). Where conf/experiment/repro_<name>_refine.yaml exists,
 the joint design is then fine-tuned at that finer fidelity into outputs/repro/<name>/refined/, and the
 refined design is the one compared.
 """
@@ -79,51 +80,66 @@ def main():
     ap.add_argument("name", choices=["translation", "rotation_single", "rotation_double", "shape_matching",
                                      "digital_mnist"])
     ap.add_argument("--baseline-steps", type=int, default=150)
-    ap.add_argument("--summarise", action="store_true", help="digital_mnist: rewrite the tables only")
+    ap.add_argument("--summarise", action="store_true", help="rewrite the tables and figures from the runs only")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides for both runs")
     args = ap.parse_args()
     out = ROOT / "outputs" / "repro" / args.name
     if args.name == "digital_mnist":
         return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
-    t0 = time.perf_counter()
-    coarse = train(args.name, out / "joint", args.overrides)
     refine = (ROOT / "conf" / "experiment" / f"repro_{args.name}_refine.yaml").exists()
-    joint = (train(f"{args.name}_refine", out / "refined", [f"trainer.init_from={out / 'joint'}", *args.overrides])
-             if refine else coarse)
-    baseline = train(args.name, out / "baseline",
-                     ["trainer.freeze_geometry=true", f"trainer.steps={args.baseline_steps}", *args.overrides])
-    total = time.perf_counter() - t0
+    if not args.summarise:
+        seconds = {"joint": train(args.name, out / "joint", args.overrides)["wall_seconds"]}
+        if refine:
+            seconds["refined"] = train(f"{args.name}_refine", out / "refined",
+                                       [f"trainer.init_from={out / 'joint'}", *args.overrides])["wall_seconds"]
+        seconds["baseline"] = train(args.name, out / "baseline", ["trainer.freeze_geometry=true",
+                                                                  f"trainer.steps={args.baseline_steps}",
+                                                                  *args.overrides])["wall_seconds"]
+        (out / "seconds.json").write_text(json.dumps(seconds))
+    summarise(out, args.name, refine)
+
+
+def summarise(out: Path, experiment: str, refine: bool):
+    """comparison.{json,md,png} from the runs' metrics.json and seconds.json."""
+    seconds = json.loads((out / "seconds.json").read_text())
+    runs = ("joint", "refined", "baseline") if refine else ("joint", "baseline")
+    m = {r: {**json.loads((out / r / "metrics.json").read_text()), "wall_seconds": seconds[r]} for r in runs}
+    coarse, baseline = m["joint"], m["baseline"]
+    joint = m["refined"] if refine else coarse  # the design compared: the refined one where there is one
+    total = sum(seconds.values())
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
-    fid = lambda m: f"{m['fidelity']['ctrl_per_patch']} x {m['fidelity']['quad_points']}"
-    summary = {"experiment": args.name, "metric": name, "unit": unit, "joint": joint["value"],
+    fid = lambda r: f"{r['fidelity']['ctrl_per_patch']} x {r['fidelity']['quad_points']}"
+    summary = {"experiment": experiment, "metric": name, "unit": unit, "joint": joint["value"],
                "baseline": baseline["value"], "joint_over_baseline": ratio,
                "joint_steps": coarse["step"], "baseline_steps": baseline["step"],
                "joint_seconds": coarse["wall_seconds"], "baseline_seconds": baseline["wall_seconds"],
                "no_actuation": joint["no_actuation"],
                "total_seconds": total, "failed_solves": [joint["failed_solves"], baseline["failed_solves"]],
-               "runs": {"joint": str(out / "joint"), "baseline": str(out / "baseline")}}
+               "runs": {r: str(out / r) for r in runs}}
     rows = [("joint (network + geometry)", coarse)]
     if refine:
         summary.update(joint_before_refinement=coarse["value"], refined_steps=joint["step"],
                        refined_seconds=joint["wall_seconds"], refined_fidelity=joint["fidelity"])
-        summary["runs"]["refined"] = str(out / "refined")
         rows.append(("joint, refined (fine-tuned at the finer fidelity)", joint))
     rows.append(("baseline (network only)", baseline))
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
     (out / "comparison.md").write_text(
-        f"# {args.name}: learned design vs geometry-frozen baseline\n\n"
+        f"# {experiment}: learned design vs geometry-frozen baseline\n\n"
         f"| run | fidelity | steps | {name} [{unit}] | wall time [s] |\n|---|---|---|---|---|\n"
-        + "".join(f"| {label} | {fid(m)} | {m['step']} | {m['value']:.4g} | {m['wall_seconds']:.0f} |\n"
-                  for label, m in rows)
+        + "".join(f"| {label} | {fid(r)} | {r['step']} | {r['value']:.4g} | {r['wall_seconds']:.0f} |\n"
+                  for label, r in rows)
         + f"| no actuation (initial design at rest) | {fid(joint)} | 0 | {joint['no_actuation']:.4g} | 0 |\n\n"
         f"joint / baseline = {ratio:.3f}; total {total / 60:.1f} min\n")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
-    evals = lambda m, offset=0: [(h["step"] + offset, h[name]) for h in m["history"] if name in h]
-    for m, ev, label in ((joint, evals(coarse) + (evals(joint, coarse["step"]) if refine else []), "joint"),
+    evals = lambda r, offset=0: [(h["step"] + offset, h[name]) for h in r["history"] if name in h]
+    for r, ev, label in ((joint, evals(coarse) + (evals(joint, coarse["step"]) if refine else []), "joint"),
                          (baseline, evals(baseline), "baseline")):
-        ax[0].plot(np.sort(m["per_sample"]), label=label)
+        ax[0].plot(np.sort(r["per_sample"]), label=label)
         ax[1].plot(*zip(*ev), "o-", ms=3, label=label)
+    if refine:
+        ax[1].axvline(coarse["step"], color="grey", lw=0.8, ls="--",
+                      label=f"{fid(coarse)} -> {fid(joint)} (refinement)")
     ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]", title="final error per target")
     ax[1].set(xlabel="step", ylabel=f"{name} [{unit}]", title="evaluation during training")
     ax[1].axhline(joint["no_actuation"], color="grey", ls=":", label="no actuation")
@@ -132,7 +148,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "comparison.png", dpi=130)
     plt.close(fig)
-    if args.name == "shape_matching":
+    if experiment == "shape_matching":
         figure_shapes_side_by_side(out)
     print((out / "comparison.md").read_text())
 
