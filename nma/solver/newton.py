@@ -17,7 +17,8 @@ stalling); the next step is shifted by a diagonal term sized from the curvature 
 (twice -du^T K du / du^T du) and from the shift that last gave descent in this solve, and the shift
 then decays tenfold per step back towards the pure Newton step.  A load step that keeps descending is
 given max_step_iters (60) iterations: cutting it earlier threw away snap-throughs that were about to
-converge.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of the
+converge; one whose residual is, or just was, within 1000x the tolerance gets up to FINISHING_ITERS
+more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of the
 linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.  The
 converged state is a stationary point of the energy, usually a minimum; where a symmetric path has
 passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts its unstable modes).
@@ -36,6 +37,7 @@ from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quad
 from .assembly import element_dofs
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
+FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step converging quadratically
 NEARLY_INCOMPRESSIBLE = 0.495  # nu from which volumetric locking, not the load path, sets Newton's pace
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
@@ -236,7 +238,11 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
     # a failed load step returns to the last converged state with half the increment;
     # a non-descent direction is retried with a larger diagonal shift first
-    cut = (descent & ~ok) | (step_it >= opts.max_step_iters) | (damped >= opts.max_damped_steps)
+    # ...but a step whose residual is, or just was, within 1000x the tolerance is a few iterations from
+    # converging (the residual need not fall monotonically there): it gets them
+    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
+    finishing = (recent <= 1e3 * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
+    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
     moved = ok & ~cut
     u_new = jnp.where(moved, s.u + a * step, jnp.where(cut, s.u_conv, s.u))
     lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
