@@ -17,9 +17,10 @@ stalling); the next step is shifted by a diagonal term sized from the curvature 
 (twice -du^T K du / du^T du) and from the shift that last gave descent in this solve, and the shift
 then decays tenfold per step back towards the pure Newton step.  A load step that keeps descending is
 given max_step_iters (60) iterations: cutting it earlier threw away snap-throughs that were about to
-converge; one whose residual is, or just was, within 1000x the tolerance gets up to FINISHING_ITERS
-more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the norm of the
-linearised out-of-balance force of the full load and k_ref * L a force scale of the structure.  The
+converge; one whose residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance
+gets up to FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where
+f_ref is the norm of the linearised out-of-balance force of the full load and k_ref * L a force scale
+of the structure.  The
 converged state is a stationary point of the energy, usually a minimum; where a symmetric path has
 passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts its unstable modes).
 """
@@ -37,7 +38,8 @@ from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quad
 from .assembly import element_dofs
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
-FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step converging quadratically
+FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearly converged...
+FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this factor of the tolerance
 NEARLY_INCOMPRESSIBLE = 0.495  # nu from which volumetric locking, not the load path, sets Newton's pace
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
@@ -241,7 +243,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     # ...but a step whose residual is, or just was, within 1000x the tolerance is a few iterations from
     # converging (the residual need not fall monotonically there): it gets them
     recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
-    finishing = (recent <= 1e3 * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
+    finishing = (recent <= FINISHING_RESIDUAL * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
     cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
     moved = ok & ~cut
     u_new = jnp.where(moved, s.u + a * step, jnp.where(cut, s.u_conv, s.u))
