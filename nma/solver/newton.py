@@ -20,9 +20,9 @@ given max_step_iters (60) iterations: cutting it earlier threw away snap-through
 converge; one whose residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance
 gets up to FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where
 f_ref is the norm of the linearised out-of-balance force of the full load and k_ref * L a force scale
-of the structure.  The
-converged state is a stationary point of the energy, usually a minimum; where a symmetric path has
-passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts its unstable modes).
+of the structure.  The converged state is a stationary point of the energy, usually a minimum; where
+a symmetric path has passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts
+its unstable modes).
 """
 from __future__ import annotations
 
