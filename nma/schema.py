@@ -169,7 +169,7 @@ class NewtonOptions(Schema):
     rtol: float = bounded(1e-10, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
     atol: float = bounded(1e-13, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
     max_iters: int = bounded(200, "[1, 100000]")
-    max_step_iters: int = bounded(60, "[1, 100000]", doc="corrector iterations before a load step fails (up to 5 "
+    max_step_iters: int = bounded(100, "[1, 100000]", doc="corrector iterations before a load step fails (up to 5 "
                                                          "more while its residual is within 1000x the tolerance)")
     initial_increment: float = bounded(1.0, "(0, 1]")
     min_increment: float = bounded(1e-4, "(0, 1]")
