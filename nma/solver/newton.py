@@ -19,9 +19,9 @@ then decays tenfold per step back towards the pure Newton step.  A load step tha
 given max_step_iters (100) iterations: cutting it earlier (25, 60) threw away snap-throughs that were
 about to converge and the slow descent along the soft valley of a nearly-mechanism design; one whose
 residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance gets up to
-FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where
-f_ref is the norm of the linearised out-of-balance force of the full load and k_ref * L a force scale
-of the structure.  The converged state is a stationary point of the energy, usually a minimum; where
+FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the
+norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the
+structure.  The converged state is a stationary point of the energy, usually a minimum; where
 a symmetric path has passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts
 its unstable modes).
 """
@@ -241,7 +241,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
     # a failed load step returns to the last converged state with half the increment;
     # a non-descent direction is retried with a larger diagonal shift first
-    # ...but a step whose residual is, or just was, within 1000x the tolerance is a few iterations from
+    # ...but a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations from
     # converging (the residual need not fall monotonically there): it gets them
     recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
     finishing = (recent <= FINISHING_RESIDUAL * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
