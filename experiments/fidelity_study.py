@@ -20,12 +20,6 @@ display), and per draw actuations uniform in [-d_max/2, d_max/2] with a task des
 The reference is 14 control points per patch, 5 Gauss points, tolerance 1e-12.  It is checked by
 successive refinement: the differences 8 -> 11 -> 14 (5 Gauss points) give an observed order of
 convergence p and a Richardson estimate of the reference's own error, |q11 - q14| / ((h11/h14)^p - 1).
-`--convergence` checks that estimate with one more refinement (8 -> 11 -> 14 -> 17 at 5 Gauss points,
-tolerance 1e-12): the order from each three successive levels (the same p twice says the ladder is in
-the asymptotic range, where Richardson's estimate holds), the Richardson limit q* = q17 + (q17 - q14) /
-((h14/h17)^p - 1) per draw and component, and the error of the settings runs train at (5 x 2: the
-reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against the 14 x 5 reference
-and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
 front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json.
@@ -52,8 +46,6 @@ REFERENCE = (14, 5, 1e-12)
 QUICK_GRID = [(5, 3, DEFAULT_RTOL), (5, 5, DEFAULT_RTOL), (8, 5, DEFAULT_RTOL), (5, 5, 1e-6)]
 QUICK_REFERENCE = (11, 5, 1e-12)
 PAPER, FAST = (5, 5), (5, 3)
-LADDER = (8, 11, 14, 17)  # --convergence: control points per patch of the refinements (5 Gauss points)
-CHECKED = ((5, 2), (8, 2), PAPER)  # --convergence: the reproductions', fidelity=auto's usual, the paper's
 
 
 class PeakMemory:
@@ -187,70 +179,6 @@ def convergence(rows: dict, ref: dict, ladder: list) -> dict:
                                          for p, q, r in zip(x["_grads"], y["_grads"], ref["_grads"])]))
         result["gradient"][k] = observed_order([rel(a, b), rel(b, ref)], spans)
     return result
-
-
-def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED) -> dict:
-    """Successive refinement one level past the reference, the Richardson limit, and the error of the
-    settings runs train at against the reference and against that limit (worst over the draws)."""
-    levels = {(c, REFERENCE[1]): measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws) for c in ladder}
-    for setting, r in levels.items():
-        print(f"{scene}: {setting}: {r['dofs']} dofs, forward+gradient {r['forward_grad_seconds']['median']:.2f} s",
-              flush=True)
-    rows = {**levels, **{s: measure(scene, (*s, DEFAULT_RTOL), draws) for s in checked}}
-    failed = {f"{c}x{q}": r["failed_draws"] for (c, q), r in rows.items() if r["failed_draws"]}
-    if failed:
-        raise RuntimeError(f"{scene}: solves failed, no convergence check: {failed}")
-    spans = np.array([c - 2 for c in ladder], dtype=float)  # knot spans per patch side, h = 1 / spans
-    reference = (REFERENCE[0], REFERENCE[1])
-    # what each quantity is per draw, and how its error is measured: the task's outputs in its units
-    # (max abs), each gradient group relative to the norm of the limit (as in compare())
-    quantities = {"observable": (lambda r: r["_outputs"], lambda a, b: np.abs(a - b).max(axis=1))}
-    for k in rows[reference]["_grads"][0]:
-        quantities[f"gradient {k}"] = (lambda r, k=k: np.array([d[k] for d in r["_grads"]]),
-                                       lambda a, b: np.linalg.norm(a - b, axis=1) / np.linalg.norm(b, axis=1))
-    result = {"scene": scene, "draws": draws, "ladder": list(ladder), "quad_points": REFERENCE[1],
-              "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
-              "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
-              "quantities": {}}
-    for name, (value, error) in quantities.items():
-        q = [value(rows[lv]) for lv in levels]
-        diffs = [float(np.max(error(a, b))) for a, b in zip(q[:-1], q[1:])]
-        triples = [observed_order(diffs[j:j + 2], list(spans[j:j + 3])) for j in range(len(diffs) - 1)]
-        p = triples[-1]["order"]
-        limit = q[-1] + (q[-1] - q[-2]) / ((spans[-1] / spans[-2]) ** p - 1) if p else None
-        result["quantities"][name] = {
-            "differences": diffs, "orders": [t["order"] for t in triples],
-            "finest_error_estimate": triples[-1]["reference_error"],
-            "error": {f"{c}x{qp}": {"vs_reference": float(np.max(error(value(r), value(rows[reference])))),
-                                    "vs_limit": float(np.max(error(value(r), limit))) if p else None}
-                      for (c, qp), r in rows.items()}}
-    return result
-
-
-def convergence_report(result: dict, out: Path) -> str:
-    scene, ladder, quantities = result["scene"], result["ladder"], result["quantities"]
-    fmt = lambda v: "-" if v is None else f"{v:.3g}"
-    ref = f"{REFERENCE[0]}x{REFERENCE[1]}"
-    lines = [f"# Fidelity study, reference check: {scene}", "",
-             f"Successive refinement {' -> '.join(map(str, ladder))} control points per patch at "
-             f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} draws.  "
-             "Orders from each three successive levels (e(h) = C h^p, h = 1 / knot spans); the limit q* is "
-             f"Richardson's from the last two levels with the last order.  Errors: worst over the draws; "
-             "observable in the task's units (max abs), gradients relative to the norm of what they are "
-             f"compared with.  Each cell: against the {ref} reference / against q*.", "",
-             "| quantity | differences between levels | orders | finest level's error (Richardson) | "
-             + " | ".join(result["dofs"]) + " |", "|---|---|---|---|" + "---|" * len(result["dofs"])]
-    for name, v in quantities.items():
-        lines.append(f"| {name} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
-                     f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error_estimate'])} | "
-                     + " | ".join(f"{fmt(e['vs_reference'])} / {fmt(e['vs_limit'])}" for e in v["error"].values())
-                     + " |")
-    lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
-    lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
-    text = "\n".join(lines) + "\n"
-    (out / f"{scene}.convergence.json").write_text(json.dumps(result, indent=1))
-    (out / f"{scene}.convergence.md").write_text(text)
-    return text
 
 
 def pareto(rows: list[dict], error: str) -> list[int]:
@@ -400,22 +328,19 @@ def child(args) -> None:
     from nma.runtime import configure_jax
 
     configure_jax()
-    result = (richardson(args.scenes[0], args.draws) if args.convergence
-              else run_scene(args.scenes[0], args.quick, args.draws))
+    result = run_scene(args.scenes[0], args.quick, args.draws)
     Path(args.result).write_text(json.dumps(result))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
-    ap.add_argument("--draws", type=int, default=3, help="actuation draws per setting (timing runs)")
+    ap.add_argument("--draws", type=int, default=4, help="actuation draws per setting (timing runs)")
     ap.add_argument("--quick", action="store_true", help="4 settings against an 11 x 5 reference (a smoke run)")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "fidelity")
     ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
                     help="where the measured fronts for fidelity=auto go")
     ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
-    ap.add_argument("--convergence", action="store_true",
-                    help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -430,20 +355,14 @@ def main():
         # one process per scene: its settings are timed side by side, its memory is its own
         result_file = args.out / f".{scene}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
-               "--result", str(result_file), *(["--quick"] if args.quick else []),
-               *(["--convergence"] if args.convergence else [])]
+               "--result", str(result_file), *(["--quick"] if args.quick else [])]
         subprocess.run(cmd, check=True)
         result = json.loads(result_file.read_text())
         result_file.unlink()
-        if args.convergence:
-            print(convergence_report(result, args.out), flush=True)
-            continue
         report(result, args.out)
         if not args.quick:  # a smoke run's front must not replace the shipped one
             print(f"{scene}: front for fidelity=auto -> {ship(result, args.data)}")
         print(f"{scene}: -> {args.out / scene}.{{json,md,png}}", flush=True)
-    if args.convergence:
-        return
     done = [json.loads((args.out / f"{scene}.json").read_text()) for scene in SCENES
             if (args.out / f"{scene}.json").exists()]
     print(summary(done, args.out))
