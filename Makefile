@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: help install test test-all bench bench-train study-fidelity study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-train study-fidelity study-reference study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -22,6 +22,9 @@ bench-train:        ## training-step speed per scene: threads vs one, compile, c
 
 study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/
 	$(PYTHON) experiments/fidelity_study.py
+
+study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.*
+	$(PYTHON) experiments/fidelity_study.py --convergence
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py

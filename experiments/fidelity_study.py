@@ -20,6 +20,12 @@ display), and per draw actuations uniform in [-d_max/2, d_max/2] with a task des
 The reference is 14 control points per patch, 5 Gauss points, tolerance 1e-12.  It is checked by
 successive refinement: the differences 8 -> 11 -> 14 (5 Gauss points) give an observed order of
 convergence p and a Richardson estimate of the reference's own error, |q11 - q14| / ((h11/h14)^p - 1).
+`--convergence` checks that estimate with one more refinement (8 -> 11 -> 14 -> 17 at 5 Gauss points,
+tolerance 1e-12): the order from each three successive levels (the same p twice says the ladder is in
+the asymptotic range, where Richardson's estimate holds), the Richardson limit q* = q17 + (q17 - q14) /
+((h14/h17)^p - 1) per draw and component, and the error of the settings runs train at (5 x 2: the
+reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against the 14 x 5 reference
+and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
 front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json.
@@ -46,6 +52,8 @@ REFERENCE = (14, 5, 1e-12)
 QUICK_GRID = [(5, 3, DEFAULT_RTOL), (5, 5, DEFAULT_RTOL), (8, 5, DEFAULT_RTOL), (5, 5, 1e-6)]
 QUICK_REFERENCE = (11, 5, 1e-12)
 PAPER, FAST = (5, 5), (5, 3)
+LADDER = (8, 11, 14, 17)  # --convergence: control points per patch of the refinements (5 Gauss points)
+CHECKED = ((5, 2), (8, 2), PAPER)  # --convergence: the reproductions', fidelity=auto's usual, the paper's
 
 
 class PeakMemory:
@@ -133,18 +141,33 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
             "_outputs": np.array(outs), "_grads": grads}
 
 
+def quantities(row: dict) -> dict:
+    """What the study compares between settings, per draw: the task's outputs and each gradient group."""
+    return {"observable": row["_outputs"],
+            **{f"gradient {k}": np.array([d[k] for d in row["_grads"]]) for k in row["_grads"][0]}}
+
+
+def distance(name: str, a: np.ndarray, b: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
+    """Per draw: outputs in the task's units (max abs); gradients relative to the norm of `scale`
+    (default b)."""
+    if name == "observable":
+        return np.abs(a - b).max(axis=1)
+    return np.linalg.norm(a - b, axis=1) / np.linalg.norm(b if scale is None else scale, axis=1)
+
+
+def cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per draw, the cosine of the angle between two gradients (rows)."""
+    return np.sum(a * b, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+
+
 def compare(row: dict, ref: dict) -> dict:
     """Errors of one setting's outputs and gradients against the reference's, worst over the draws."""
-    out_err = float(np.max(np.abs(row["_outputs"] - ref["_outputs"])))
-    groups = {}
-    for k in ref["_grads"][0]:
-        g = np.array([d[k] for d in row["_grads"]])
-        g_ref = np.array([d[k] for d in ref["_grads"]])
-        norm = np.linalg.norm(g_ref, axis=1)
-        rel = np.linalg.norm(g - g_ref, axis=1) / norm
-        cos = np.sum(g * g_ref, axis=1) / (np.linalg.norm(g, axis=1) * norm)
-        groups[k] = {"relative_error": float(np.max(rel)), "cosine": float(np.min(cos))}
-    return {"observable_error": out_err, "gradient": groups,
+    mine, theirs = quantities(row), quantities(ref)
+    groups = {name.removeprefix("gradient "): {
+        "relative_error": float(np.max(distance(name, mine[name], theirs[name]))),
+        "cosine": float(np.min(cosine(mine[name], theirs[name])))} for name in theirs if name != "observable"}
+    return {"observable_error": float(np.max(distance("observable", mine["observable"], theirs["observable"]))),
+            "gradient": groups,
             "gradient_error": max(v["relative_error"] for v in groups.values()),
             "gradient_cosine": min(v["cosine"] for v in groups.values())}
 
@@ -166,19 +189,85 @@ def observed_order(diffs: list[float], spans: list[int]) -> dict:
     return {"differences": diffs, "order": float(p), "reference_error": float(d2 / ((h[1] / h[2]) ** p - 1))}
 
 
-def convergence(rows: dict, ref: dict, ladder: list) -> dict:
-    """Successive refinement at 5 Gauss points: is the reference converged, and how far off is it?"""
-    a, b = rows[ladder[0]], rows[ladder[1]]
-    spans = [setting[0] - 2 for setting in ladder] + [ref["ctrl_per_patch"] - 2]  # knot spans per patch side
-    diff = lambda x, y, f: float(np.max([f(p, q) for p, q in zip(x, y)]))
-    out_d = [diff(a["_outputs"], b["_outputs"], lambda p, q: np.abs(p - q).max()),
-             diff(b["_outputs"], ref["_outputs"], lambda p, q: np.abs(p - q).max())]
-    result = {"spans": spans, "observable": observed_order(out_d, spans), "gradient": {}}
-    for k in ref["_grads"][0]:
-        rel = lambda x, y: float(np.max([np.linalg.norm(p[k] - q[k]) / np.linalg.norm(r[k])
-                                         for p, q, r in zip(x["_grads"], y["_grads"], ref["_grads"])]))
-        result["gradient"][k] = observed_order([rel(a, b), rel(b, ref)], spans)
-    return result
+def refinement(levels: list[dict]) -> tuple[dict, dict]:
+    """Successive refinement at fixed Gauss points, coarse to fine.  Per quantity: the differences of
+    consecutive levels (worst over the draws), the observed order from each three successive levels (the
+    same order twice: the asymptotic range, where Richardson holds), the Richardson estimate of the
+    finest level's own error with the last order; and, apart (arrays, per draw), the Richardson limit."""
+    spans = [r["ctrl_per_patch"] - 2 for r in levels]  # knot spans per patch side, h = 1 / spans
+    summary, limits = {"spans": spans, "quantities": {}}, {}
+    for name in quantities(levels[-1]):
+        q = [quantities(r)[name] for r in levels]
+        # one scale for every difference (the finest level), so that a power law stays one
+        diffs = [float(np.max(distance(name, a, b, q[-1]))) for a, b in zip(q[:-1], q[1:])]
+        triples = [observed_order(diffs[j:j + 2], spans[j:j + 3]) for j in range(len(diffs) - 1)]
+        p = triples[-1]["order"]
+        limits[name] = q[-1] + (q[-1] - q[-2]) / ((spans[-1] / spans[-2]) ** p - 1) if p else None
+        summary["quantities"][name] = {"differences": diffs, "orders": [t["order"] for t in triples],
+                                       "finest_error": triples[-1]["reference_error"]}
+    return summary, limits
+
+
+def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED) -> dict:
+    """The reference check: refinement one level past the reference, the Richardson limit, and the error
+    of the settings runs train at against the reference and against that limit (worst over the draws)."""
+    levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws) for c in ladder]
+    for r in levels:
+        print(f"{scene}: {r['ctrl_per_patch']}x{r['quad_points']}: {r['dofs']} dofs, forward+gradient "
+              f"{r['forward_grad_seconds']['median']:.2f} s", flush=True)
+    rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in levels}
+    rows.update({s: measure(scene, (*s, DEFAULT_RTOL), draws) for s in checked})
+    failed = {f"{c}x{q}": r["failed_draws"] for (c, q), r in rows.items() if r["failed_draws"]}
+    if failed:
+        raise RuntimeError(f"{scene}: solves failed, no reference check: {failed}")
+    result, limits = refinement(levels)
+    reference = quantities(rows[REFERENCE[:2]])
+    for name, v in result["quantities"].items():
+        v["error"] = {}
+        for (c, qp), r in rows.items():
+            against = {"reference": reference[name], "limit": limits[name]}
+            e = {f"vs_{k}": None if b is None else float(np.max(distance(name, quantities(r)[name], b)))
+                 for k, b in against.items()}
+            if name != "observable":  # a right direction matters more to Adam than a right length
+                e.update({f"cosine_vs_{k}": None if b is None else float(np.min(cosine(quantities(r)[name], b)))
+                          for k, b in against.items()})
+            v["error"][f"{c}x{qp}"] = e
+    return {"scene": scene, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
+            "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
+            "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
+            **result}
+
+
+def convergence_report(result: dict, out: Path) -> str:
+    scene, ladder = result["scene"], [s + 2 for s in result["spans"]]
+    fmt = lambda v: "-" if v is None else f"{v:.3g}"
+    ref = f"{REFERENCE[0]}x{REFERENCE[1]}"
+    lines = [f"# Fidelity study, reference check: {scene}", "",
+             f"Successive refinement {' -> '.join(map(str, ladder))} control points per patch at "
+             f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} draws.  "
+             "Orders from each three successive levels (e(h) = C h^p, h = 1 / knot spans); the limit q* is "
+             f"Richardson's from the last two levels with the last order.  Errors: worst over the draws; "
+             "observable in the task's units (max abs), gradients relative to the norm of what they are "
+             f"compared with.  Each cell: against the {ref} reference / against q*.", "",
+             "| quantity | differences between levels | orders | finest level's error (Richardson) | "
+             + " | ".join(result["dofs"]) + " |", "|---|---|---|---|" + "---|" * len(result["dofs"])]
+    for name, v in result["quantities"].items():
+        lines.append(f"| {name} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
+                     f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error'])} | "
+                     + " | ".join(f"{fmt(e['vs_reference'])} / {fmt(e['vs_limit'])}" for e in v["error"].values())
+                     + " |")
+    lines += ["", "Gradient cosines (worst over the draws), against the reference / against q*:", "",
+              "| quantity | " + " | ".join(result["dofs"]) + " |", "|---|" + "---|" * len(result["dofs"])]
+    cos = lambda v: "-" if v is None else f"{v:.4f}"
+    lines += [f"| {name} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
+                                        for e in v["error"].values()) + " |"
+              for name, v in result["quantities"].items() if name != "observable"]
+    lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
+    lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
+    text = "\n".join(lines) + "\n"
+    (out / f"{scene}.convergence.json").write_text(json.dumps(result, indent=1))
+    (out / f"{scene}.convergence.md").write_text(text)
+    return text
 
 
 def pareto(rows: list[dict], error: str) -> list[int]:
@@ -205,7 +294,7 @@ def run_scene(scene: str, quick: bool, draws: int) -> dict:
     ladder = [s for s in ((8, 5, DEFAULT_RTOL), (11, 5, DEFAULT_RTOL)) if s in rows]
     result = {"scene": scene, "draws": draws, "machine": {"cpus": os.cpu_count()},
               "reference": {k: v for k, v in ref.items() if not k.startswith("_")},
-              "convergence": convergence(rows, ref, ladder) if len(ladder) == 2 else None,
+              "convergence": refinement([rows[s] for s in ladder] + [ref])[0] if len(ladder) == 2 else None,
               "settings": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows.values()]}
     return result
 
@@ -264,11 +353,12 @@ def report(result: dict, out: Path) -> None:
     conv = result["convergence"]
     if conv:
         fmt = lambda c: (f"differences {c['differences'][0]:.2e} -> {c['differences'][1]:.2e}, observed order "
-                         + (f"{c['order']:.2f}, estimated reference error {c['reference_error']:.1e}"
-                            if c["order"] else "undetermined (not in the asymptotic range)"))
+                         + (f"{c['orders'][0]:.2f}, estimated reference error {c['finest_error']:.1e}"
+                            if c["orders"][0] else "undetermined (not in the asymptotic range)"))
         lines += ["", f"Reference check, refinement {' -> '.join(str(s + 2) for s in conv['spans'])} control points "
-                      "(5 Gauss points):", "", f"- observable: {fmt(conv['observable'])}"]
-        lines += [f"- gradient {k} (relative): {fmt(c)}" for k, c in conv["gradient"].items()]
+                      "(5 Gauss points):", ""]
+        lines += [f"- {name}{' (relative)' if name != 'observable' else ''}: {fmt(c)}"
+                  for name, c in conv["quantities"].items()]
     (out / f"{scene}.md").write_text("\n".join(lines) + "\n")
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -313,7 +403,8 @@ def summary(results: list[dict], out: Path, tolerance: float = 0.1) -> str:
         cell = lambda r: f"{r['forward_grad_seconds']['median']:.3g} / {r['gradient_error']:.3f}"
         pick = fastest_within(list(rows.values()), tolerance)
         ref, conv = result["reference"], result["convergence"] or {}
-        est = [c["reference_error"] for c in conv.get("gradient", {}).values() if c.get("reference_error") is not None]
+        est = [c["finest_error"] for name, c in conv.get("quantities", {}).items()
+               if name.startswith("gradient") and c["finest_error"] is not None]
         lines.append(
             f"| {result['scene']} | {rows[PAPER]['dofs']} | {cell(rows[PAPER])} / {rows[PAPER]['gradient_cosine']:.3f} | "
             f"{cell(rows[FAST])} | " + (f"{pick['ctrl_per_patch']}x{pick['quad_points']}, {cell(pick)}" if pick else "none")
@@ -328,19 +419,22 @@ def child(args) -> None:
     from nma.runtime import configure_jax
 
     configure_jax()
-    result = run_scene(args.scenes[0], args.quick, args.draws)
+    result = (richardson(args.scenes[0], args.draws) if args.convergence
+              else run_scene(args.scenes[0], args.quick, args.draws))
     Path(args.result).write_text(json.dumps(result))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
-    ap.add_argument("--draws", type=int, default=4, help="actuation draws per setting (timing runs)")
+    ap.add_argument("--draws", type=int, default=3, help="actuation draws per setting (timing runs)")
     ap.add_argument("--quick", action="store_true", help="4 settings against an 11 x 5 reference (a smoke run)")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "fidelity")
     ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
                     help="where the measured fronts for fidelity=auto go")
     ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
+    ap.add_argument("--convergence", action="store_true",
+                    help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -355,14 +449,20 @@ def main():
         # one process per scene: its settings are timed side by side, its memory is its own
         result_file = args.out / f".{scene}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
-               "--result", str(result_file), *(["--quick"] if args.quick else [])]
+               "--result", str(result_file), *(["--quick"] if args.quick else []),
+               *(["--convergence"] if args.convergence else [])]
         subprocess.run(cmd, check=True)
         result = json.loads(result_file.read_text())
         result_file.unlink()
+        if args.convergence:
+            print(convergence_report(result, args.out), flush=True)
+            continue
         report(result, args.out)
         if not args.quick:  # a smoke run's front must not replace the shipped one
             print(f"{scene}: front for fidelity=auto -> {ship(result, args.data)}")
         print(f"{scene}: -> {args.out / scene}.{{json,md,png}}", flush=True)
+    if args.convergence:
+        return
     done = [json.loads((args.out / f"{scene}.json").read_text()) for scene in SCENES
             if (args.out / f"{scene}.json").exists()]
     print(summary(done, args.out))

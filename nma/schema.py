@@ -154,7 +154,8 @@ class Fidelity(Schema):
     ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
     quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
-                                         "error allowed; the scene's measured front then sets the two above")
+                                         "error allowed against the 14 x 5 reference; the scene's measured front "
+                                         "then sets the two above")
 
     def check(self):
         if (self.ctrl_per_patch - 2) % 3:

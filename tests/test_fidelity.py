@@ -94,3 +94,47 @@ def test_random_design_stays_in_its_box_with_convex_cells():
         assert np.all(np.asarray(params[k]) >= lo) and np.all(np.asarray(params[k]) <= hi)
         assert np.ptp(np.asarray(params[k])) > 0  # non-uniform
     assert float(np.min(design.corner_turns(params))) >= MIN_TURN
+
+
+def _study():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "fidelity_study", Path(__file__).resolve().parent.parent / "experiments" / "fidelity_study.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("orders", [(2.0,), (1.0, 0.5)])
+def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_sequence(orders):
+    """q(h) = q* + C sum_i h^p_i with known q*, C, p_i (h = 1 / knot spans, spans = control points - 2).
+    One power law: the reference check must find its order from both triples of the ladder 8 -> 11 -> 14
+    -> 17, and Richardson's limit q* and the finest level's error.  Two (h + sqrt h, as a solution with
+    a boundary singularity converges): the order must be seen falling along the ladder, the sign that
+    it is not yet in the asymptotic range."""
+    study = _study()
+    rng = np.random.default_rng(0)
+    limit = {"observable": rng.normal(size=(2, 6)), "radii": rng.normal(size=(2, 9))}
+    coeff = {k: rng.normal(size=v.shape) for k, v in limit.items()}
+    levels = []
+    for c in (8, 11, 14, 17):
+        q = {k: limit[k] + coeff[k] * sum((1.0 / (c - 2)) ** p for p in orders) for k in limit}
+        levels.append({"ctrl_per_patch": c, "_outputs": q["observable"], "_grads": [{"radii": g} for g in q["radii"]]})
+    summary, limits = study.refinement(levels)
+    assert summary["spans"] == [6, 9, 12, 15]
+    for name, key in (("observable", "observable"), ("gradient radii", "radii")):
+        found = summary["quantities"][name]
+        assert len(found["differences"]) == 3 and len(found["orders"]) == 2
+        if len(orders) == 1:
+            np.testing.assert_allclose(found["orders"], [orders[0]] * 2, rtol=1e-6)
+            np.testing.assert_allclose(limits[name], limit[key], rtol=1e-8, atol=1e-10)
+            finest = study.quantities(levels[-1])[name]
+            assert found["finest_error"] == pytest.approx(np.max(study.distance(name, finest, limit[key], finest)),
+                                                          rel=1e-6)
+            # the study's own check (8 -> 11 -> 14 against its reference) is the three-level case
+            three = study.refinement(levels[:3])[0]["quantities"][name]
+            assert three["orders"] == pytest.approx([orders[0]], rel=1e-6)
+        else:
+            assert orders[1] < found["orders"][1] < found["orders"][0] < orders[0]
