@@ -196,8 +196,9 @@ def refinement(levels: list[dict]) -> tuple[dict, dict]:
     finest level's own error with the last order; and, apart (arrays, per draw), the Richardson limit."""
     spans = [r["ctrl_per_patch"] - 2 for r in levels]  # knot spans per patch side, h = 1 / spans
     summary, limits = {"spans": spans, "quantities": {}}, {}
-    for name in quantities(levels[-1]):
-        q = [quantities(r)[name] for r in levels]
+    per_level = [quantities(r) for r in levels]
+    for name in per_level[-1]:
+        q = [level[name] for level in per_level]
         # one scale for every difference (the finest level), so that a power law stays one
         diffs = [float(np.max(distance(name, a, b, q[-1]))) for a, b in zip(q[:-1], q[1:])]
         triples = [observed_order(diffs[j:j + 2], spans[j:j + 3]) for j in range(len(diffs) - 1)]
@@ -221,15 +222,16 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED) -> dict:
     if failed:
         raise RuntimeError(f"{scene}: solves failed, no reference check: {failed}")
     result, limits = refinement(levels)
-    reference = quantities(rows[REFERENCE[:2]])
+    per_row = {setting: quantities(r) for setting, r in rows.items()}
+    reference = per_row[REFERENCE[:2]]
     for name, v in result["quantities"].items():
+        against = {"reference": reference[name], "limit": limits[name]}
         v["error"] = {}
-        for (c, qp), r in rows.items():
-            against = {"reference": reference[name], "limit": limits[name]}
-            e = {f"vs_{k}": None if b is None else float(np.max(distance(name, quantities(r)[name], b)))
+        for (c, qp), mine in per_row.items():
+            e = {f"vs_{k}": None if b is None else float(np.max(distance(name, mine[name], b)))
                  for k, b in against.items()}
             if name != "observable":  # a right direction matters more to Adam than a right length
-                e.update({f"cosine_vs_{k}": None if b is None else float(np.min(cosine(quantities(r)[name], b)))
+                e.update({f"cosine_vs_{k}": None if b is None else float(np.min(cosine(mine[name], b)))
                           for k, b in against.items()})
             v["error"][f"{c}x{qp}"] = e
     return {"scene": scene, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},

@@ -96,17 +96,6 @@ def test_random_design_stays_in_its_box_with_convex_cells():
     assert float(np.min(design.corner_turns(params))) >= MIN_TURN
 
 
-def _study():
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location(
-        "fidelity_study", Path(__file__).resolve().parent.parent / "experiments" / "fidelity_study.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.parametrize("orders", [(2.0,), (1.0, 0.5)])
 def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_sequence(orders):
     """q(h) = q* + C sum_i h^p_i with known q*, C, p_i (h = 1 / knot spans, spans = control points - 2).
@@ -114,7 +103,8 @@ def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_se
     -> 17, and Richardson's limit q* and the finest level's error.  Two (h + sqrt h, as a solution with
     a boundary singularity converges): the order must be seen falling along the ladder, the sign that
     it is not yet in the asymptotic range."""
-    study = _study()
+    from experiments import fidelity_study as study
+
     rng = np.random.default_rng(0)
     limit = {"observable": rng.normal(size=(2, 6)), "radii": rng.normal(size=(2, 9))}
     coeff = {k: rng.normal(size=v.shape) for k, v in limit.items()}

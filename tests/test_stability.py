@@ -1,19 +1,12 @@
 """A slice of the stability map (experiments/stability_map.py) that must converge: cells at nu <= 0.49
 where earlier solvers stopped short of full load.  The designs are the map's own (same construction,
 same seed), so a cell here is the cell in outputs/studies/stability/<scene>.json."""
-import importlib.util
-from pathlib import Path
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from experiments import stability_map
 from nma.mechanics.material import material
-
-_spec = importlib.util.spec_from_file_location(
-    "stability_map", Path(__file__).resolve().parent.parent / "experiments" / "stability_map.py")
-stability_map = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(stability_map)
 
 CELLS = [  # scene, design, nu, actuation: what failed before and why
     # the issue's probe: fails at nu 0.45 and converges at 0.49 with the first load-stepping rule
