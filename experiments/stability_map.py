@@ -14,7 +14,8 @@ Per scene, every combination of
 records the outcome (converged, or the solver's status with the load factor reached and the last
 residual), iterations, load steps, cuts and wall time, and checks that nothing returned is NaN; for a
 converged state, the number of negative eigenvalues of the Hessian there (PARDISO's inertia): 0 is a
-stable equilibrium, more is a saddle that a perturbation would leave.
+stable equilibrium, more is a saddle that a perturbation would leave; and whether it is a physical
+object (nma/geometry/validity.py: det F over the whole material, no boundary curve through another).
 Writes <scene>.json (every solve), <scene>.md (tables) and <scene>.png (heat maps: fraction of
 directions converged per material and design, and the time per solve relative to the scene's median
 converged solve).  Fidelity and solver are the scene's training defaults (paper fidelity, PARDISO).
@@ -74,6 +75,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     import jax.numpy as jnp
 
     from nma import config
+    from nma.geometry.validity import StateChecker
     from nma.mechanics.material import material
     from nma.simulator import Simulator
     from nma.solver.newton import CONVERGED, STATUS_TEXT
@@ -104,16 +106,23 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
         # a converged state may be a saddle (e.g. a symmetric path past a buckling point): count its
         # unstable modes from the inertia of the Hessian there
         unstable = sim.negative_eigenvalues(X, d, material(E, nu), u) if status == CONVERGED else None
+        # a converged state may not be a physical object (material inverted between Gauss points, a
+        # wall through a wall): nma/geometry/validity.py
+        state = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if status == CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
                         "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
                         "load_reached": float(info.load), "iterations": int(info.iterations),
                         "load_steps": int(info.load_steps), "cuts": int(info.cuts),
                         "residual": float(info.residual), "tolerance": float(info.tolerance),
-                        "seconds": seconds, "finite": finite, "negative_eigenvalues": unstable})
+                        "seconds": seconds, "finite": finite, "negative_eigenvalues": unstable,
+                        "valid": None if state is None else state.valid,
+                        "min_J": None if state is None else state.min_J,
+                        "problems": None if state is None else state.problems()})
         r = records[-1]
         print(f"{scene:16s} {gname[:28]:28s} nu={nu:<6} d={np.round(d_max * s, 1).tolist()}: "
               f"{'ok' if r['converged'] else 'FAILED at load ' + format(r['load_reached'], '.3f')} "
               f"{'' if not unstable else f'(saddle: {unstable} negative eigenvalues) '}"
+              f"{'' if state is None or state.valid else '(NOT PHYSICAL: ' + '; '.join(state.problems()) + ') '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
             "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else ""),
@@ -146,6 +155,9 @@ def summarise(result: dict, out: Path) -> None:
                          "converged_by_nu": {str(nu): sum(r["converged"] for r in recs if r["nu"] == nu) for nu in nus},
                          "solves_by_nu": {str(nu): sum(r["nu"] == nu for r in recs) for nu in nus},
                          "saddles": len(saddles),
+                         # older maps (before the validity check) have no "valid" field: None
+                         "invalid": (sum(r.get("valid") is False for r in recs)
+                                     if any("valid" in r for r in recs) else None),
                          "median_converged_seconds": float(conv_time),
                          "median_failed_seconds": float(np.median([r["seconds"] for r in failed])) if failed else None,
                          "failed_over_converged_same_nu": (float(np.max([r["seconds"] / conv_at[r["nu"]] for r in failed]))
@@ -160,7 +172,10 @@ def summarise(result: dict, out: Path) -> None:
              + (f", {s['median_failed_seconds']:.2f} s failed (at most {s['failed_over_converged_same_nu']:.1f}x the "
                 f"median converged solve at the same nu)" if failed else "") + ". "
              f"{s['saddles']} converged states are saddles (negative eigenvalues of the Hessian: unstable "
-             f"equilibria, e.g. a symmetric path past a buckling point).", "",
+             f"equilibria, e.g. a symmetric path past a buckling point)."
+             + ("" if s["invalid"] is None else f" {s['invalid']} converged states are not physical objects "
+                "(material inverted somewhere, or a boundary curve through itself or another).") + "",
+             "",
              "| design | " + " | ".join(f"nu {nu}" for nu in nus) + " |", "|---|" + "---|" * len(nus)]
     for i, g in enumerate(geoms):
         lines.append(f"| {g} | " + " | ".join(f"{frac[i, j]:.0%}" for j in range(len(nus))) + " |")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import math
 import sys
 from contextlib import contextmanager
 from typing import Callable
@@ -116,3 +117,14 @@ def exit_codes(rank: int = 0):
     except (SolverError, TrainingError) as err:
         _say(str(err), rank)
         sys.exit(FAILED)
+
+
+def json_safe(value):
+    """Non-finite floats as null (JSON has no NaN or Infinity)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value

@@ -6,7 +6,8 @@
 Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set at the
 run's own training fidelity and at the one asked for, with the same code, and writes both side by side
 into <run>/evaluate/<ctrl>x<quad>.json (and one JSON line on stdout): the metric, its per-sample
-values, failed solves, the change, and the DOFs of each discretisation.  A design that only works in
+values, failed solves, how many states are not physical objects (nma/geometry/validity.py), the change,
+and the DOFs of each discretisation.  A design that only works in
 the coarse model shows here as a metric that grows under refinement.
 """
 from __future__ import annotations
@@ -52,6 +53,7 @@ def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
     task = trainer.task
     return {"fidelity": fidelity_record(trainer.sim.disc),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
+            **{k: ev[k] for k in ("invalid_states", "checked_states", "min_J", "min_gap", "invalid_samples")},
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
 
 
@@ -90,7 +92,14 @@ def hydra_main(cfg: DictConfig) -> None:
         t["metric"], result["unit"], t["fidelity"]["dofs"], e["metric"], e["fidelity"]["ctrl_per_patch"],
         e["fidelity"]["quad_points"], e["fidelity"]["dofs"], result["change"])
     brief = {k: v for k, v in result.items() if k not in ("training_fidelity", "evaluated_fidelity")}
-    brief.update(training_metric=t["metric"], evaluated_metric=e["metric"])
+    brief.update(training_metric=t["metric"], evaluated_metric=e["metric"],
+                 training_invalid_states=t["invalid_states"], evaluated_invalid_states=e["invalid_states"])
+    for which, record in (("training", t), ("evaluated", e)):
+        if record["invalid_states"]:
+            from .geometry.validity import describe
+
+            logging.getLogger("nma.evaluate").warning("at the %s fidelity: %s", which,
+                                                      describe(record, record["invalid_samples"]))
     print(json.dumps(brief), flush=True)
 
 

@@ -9,8 +9,10 @@ as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per
 - dxf: one degree-2 SPLINE per closed curve, exactly the design's B-splines, drawing units millimetres;
 - stl: the section (the curves through `samples` points per knot span) extruded to `thickness` mm.
 The report: bounding box, material area, porosity (pore area over the area the outer boundary
-encloses), and the minimum ligament width, the narrowest material between two boundary curves (pore
-to pore, or pore to outer boundary) and where it is.
+encloses), the minimum ligament width, the narrowest material between two boundary curves (pore
+to pore, or pore to outer boundary) and where it is, and (`states=true`, the default) whether the design
+stays a physical object in every deformed state of its task's evaluation set (evaluation_states: how
+many states are not, and why; nma/geometry/validity.py).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from . import cli
+from .cli import json_safe
 from .config import CONF_DIR
 from .geometry.outline import Outline, bezier_segments, loop_spline
 from .schema import ConfigError, ExportConfig, build, register
@@ -141,6 +144,30 @@ def write_stl(outline: Outline, path: Path, thickness: float, samples: int) -> f
     return float(mesh.volume)
 
 
+def evaluation_states(run_dir) -> dict:
+    """Does the design stay a physical object over its task's whole evaluation set?  The run's final
+    evaluation (metrics.json) where it was made with the newest checkpoint, otherwise that evaluation
+    solved again here (python -m nma.evaluate does the same at another fidelity)."""
+    from .run import load_run
+
+    run = Path(run_dir)
+    settings, _, path = load_run(run)
+    step = int(path.stem.split("_")[-1])
+    keys = ("invalid_states", "checked_states", "failed_solves", "min_J", "min_gap", "invalid_samples")
+    metrics = run / "metrics.json"
+    logged = json.loads(metrics.read_text()) if metrics.is_file() else {}
+    if logged.get("step") == step and all(k in logged for k in keys):
+        found, source = {k: logged[k] for k in keys}, f"the run's final evaluation ({metrics.name})"
+    else:
+        from .evaluate import evaluate_at
+
+        found = evaluate_at(settings, run, settings.fidelity, settings.solver)
+        found, source = {k: found[k] for k in keys}, f"solved again from {path.name}"
+    fidelity = settings.fidelity
+    return {"valid": found["invalid_states"] == 0, **found, "step": step, "source": source,
+            "fidelity": f"{fidelity.ctrl_per_patch} x {fidelity.quad_points}"}
+
+
 def export(s: ExportConfig) -> dict:
     outline = trained_outline(s.run).scaled(s.scale)
     path = Path(s.output) if s.output else Path(s.run) / "export" / f"design.{s.format}"
@@ -153,8 +180,10 @@ def export(s: ExportConfig) -> dict:
     else:
         report["thickness"] = s.thickness
         report["volume"] = write_stl(outline, path, s.thickness, s.samples)
+    if s.states:
+        report["evaluation_states"] = evaluation_states(s.run)
     result = {"file": str(path), "format": s.format, "units": "mm", "scale_mm_per_unit": s.scale, **report}
-    (path.parent / "fabrication.json").write_text(json.dumps(result, indent=1))
+    (path.parent / "fabrication.json").write_text(json.dumps(json_safe(result), indent=1, allow_nan=False))
     return result
 
 
@@ -162,7 +191,13 @@ def export(s: ExportConfig) -> dict:
 def hydra_main(cfg: DictConfig) -> None:
     with cli.exit_codes():
         result = export(validate(cfg))
-    print(json.dumps(result), flush=True)
+    states = result.get("evaluation_states")
+    if states and not states["valid"]:
+        from .geometry.validity import describe
+
+        logging.getLogger("nma.export").warning("the design is not a physical object in every state of its task: %s",
+                                                describe(states, states["invalid_samples"]))
+    print(json.dumps(json_safe(result), allow_nan=False), flush=True)
 
 
 def main() -> None:

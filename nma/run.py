@@ -160,6 +160,11 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
              at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
+    if evaluation["invalid_states"]:
+        from .geometry.validity import describe
+
+        log.warning("%s. They are marked in figures/deformed.png and listed in metrics.json (invalid_samples).",
+                    describe(evaluation, evaluation["invalid_samples"]))
     return evaluation
 
 

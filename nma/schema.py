@@ -501,6 +501,7 @@ class ExportConfig(Schema):
     samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
                                                 "(STL, the fabrication report)")
     output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
+    states: bool = True                     # report whether every deformed state of the task's evaluation set is physical
 
 
 @dataclass

@@ -4,14 +4,16 @@
 
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
-converged, seconds); a value that is not finite is written as null, so the line is always JSON.
+converged, valid, validity, seconds); a value that is not finite is written as null, so the line is
+always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py: det F
+over the whole material, no boundary curve through itself or another); `validity` has the details.
 Exit codes as in nma/cli.py: 2 for bad input (before any work), 1 if the solve cannot reach full
 load (the JSON line says how far it got).
 """
 from __future__ import annotations
 
 import json
-import math
+import logging
 import sys
 import time
 from pathlib import Path
@@ -20,9 +22,11 @@ import hydra
 from omegaconf import DictConfig
 
 from . import cli
+from .cli import json_safe
 from .config import CONF_DIR
 from .schema import SimulateConfig, build, register
 
+log = logging.getLogger("nma.simulate")
 register()
 
 
@@ -44,6 +48,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
 
     from .geometry.discretise import discretise
     from .geometry.scene import scene_from_config
+    from .geometry.validity import StateChecker
     from .io.fields import write_fields
     from .mechanics.material import material
     from .simulator import Simulator
@@ -66,11 +71,16 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
                 "load_steps": int(info.load_steps), "newton_iterations": int(info.iterations),
                 "residual": float(info.residual)}
     tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(sol.X, sol.u).items()}
+    checker = StateChecker(sim.disc, sol.X)
+    state = checker.check(sol.u)
+    if not state.valid:
+        log.warning("the equilibrium is not a physical object: %s", "; ".join(state.problems()))
     h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, sol.X, sol.u, s.output.samples,
                             attrs={"actuation": np.asarray(d), "energy": sol.energy})
     result.update({
         "tracked": tracked, "energy": sol.energy, "load_steps": int(sol.info.load_steps),
-        "newton_iterations": int(sol.info.iterations), "converged": True,
+        "newton_iterations": int(sol.info.iterations), "converged": True, "valid": state.valid,
+        "validity": {**state.record(), "resolution": checker.resolution},
         "residual": float(sol.info.residual), "tolerance": float(sol.info.tolerance),
         "seconds": sol.seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
     if s.output.figure:
@@ -78,17 +88,6 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
                                           f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")
         result["figure"] = str(png)
     return result
-
-
-def json_safe(value):
-    """Non-finite floats as null (JSON has no NaN or Infinity)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="simulate", version_base="1.3")

@@ -121,6 +121,27 @@ def test_run_directory_holds_every_artefact(translation_run):
     assert list((d / "wandb").glob("offline-run-*"))  # wandb logs offline by default
 
 
+def test_every_evaluated_state_is_checked_and_the_export_says_so(translation_run, tmp_path):
+    """metrics.json counts the states that are not physical objects; the fabrication report takes them
+    from the run's final evaluation, and solving that evaluation again gives the same counts."""
+    from nma.export import ExportConfig, export
+
+    metrics = json.loads((translation_run / "metrics.json").read_text())
+    assert metrics["checked_states"] == 4 and 0 <= metrics["invalid_states"] <= 4
+    assert metrics["invalid_states"] == len(metrics["invalid_samples"])
+    assert 0 < metrics["min_J"] <= 1.5 and 0 < metrics["min_gap"] < 2.5
+    report = export(ExportConfig(run=str(translation_run), output=str(tmp_path / "a.svg")))
+    states = report["evaluation_states"]
+    assert states["source"].startswith("the run's final evaluation") and states["step"] == metrics["step"]
+    assert states["valid"] == (metrics["invalid_states"] == 0)
+    run = copy_run(translation_run, tmp_path / "run")
+    (run / "metrics.json").unlink()
+    again = export(ExportConfig(run=str(run), output=str(tmp_path / "b.svg")))["evaluation_states"]
+    assert again["source"].startswith("solved again")
+    assert again["invalid_states"] == metrics["invalid_states"] and again["checked_states"] == 4
+    assert again["min_J"] == pytest.approx(metrics["min_J"], rel=1e-8)
+
+
 def test_hdf5_fields_match_the_solution(translation_run):
     import h5py
 

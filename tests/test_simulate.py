@@ -21,6 +21,9 @@ def test_simulate_writes_fields_figure_and_json(tmp_path):
     for key in ("scene", "dofs", "tracked", "energy", "load_steps", "newton_iterations", "converged", "seconds"):
         assert key in result
     assert result["scene"] == "translation" and result["dofs"] == 3462 and result["converged"]
+    # a mild actuation of the initial design: a physical state, its walls 1.25 wide at rest barely thinner
+    assert result["valid"] is True and result["validity"]["problems"] == []
+    assert 0.5 < result["validity"]["min_J"] < 1.0 and 1.0 < result["validity"]["min_gap"] < 1.25
     # d0 = 1 moves the left side by (-1, 0) and d1 = -0.5 the right by (+0.5, 0): the pointer goes left
     assert result["tracked"]["pointer"][0] < 12.5
     with h5py.File(tmp_path / "fields.h5") as f:

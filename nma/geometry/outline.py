@@ -1,10 +1,11 @@
 """The material's boundary as closed curves, for fabrication (nma.export) and for what a maker checks.
 
-A scene is a union of 5 x 5 quadratic B-spline patches (the design nets); an edge that belongs to one
-patch only lies on the boundary.  Chained at their end points, the boundary edges form closed loops:
-the outer boundary and one loop per pore.  Each edge is a quadratic B-spline on three uniform spans
-(open knots), so a loop is exactly one quadratic B-spline with double knots where edges join (C0
-there), and every span is exactly one quadratic Bezier segment.
+A scene is a union of m x m quadratic B-spline patches (m = 5: the design nets; any m: an analysis
+discretisation, reference or deformed); an edge that belongs to one patch only lies on the boundary.
+Chained at their end points, the boundary edges form closed loops: the outer boundary and one loop per
+pore.  Each edge is a quadratic B-spline on m - 2 uniform spans (open knots), so a loop is exactly one
+quadratic B-spline with double knots where edges join (C0 there), and every span is exactly one
+quadratic Bezier segment.
 """
 from __future__ import annotations
 
@@ -13,20 +14,17 @@ from functools import cached_property
 
 import numpy as np
 
-from .bspline import DESIGN_CTRL, basis_matrix, gauss_legendre_01
+from .bspline import basis_matrix, gauss_legendre_01
 from .discretise import Discretisation
 
-SPANS = DESIGN_CTRL - 2  # knot spans per edge of a design net
+def spans(loop: np.ndarray) -> int:
+    """Knot spans per edge of a loop (n_edges, m, 2): m - 2."""
+    return loop.shape[1] - 2
 
 
 def boundary_edges(disc: Discretisation) -> list[np.ndarray]:
-    """Point indices (5,) of each boundary edge, running counter-clockwise around its own patch.
-
-    `disc` must be discretised at the design's resolution (5 control points per patch), so that its
-    merged point indices are those of the design nets."""
+    """Point indices (m,) of each boundary edge, running counter-clockwise around its own patch."""
     m = disc.fidelity.ctrl_per_patch
-    if m != DESIGN_CTRL:
-        raise ValueError(f"boundary_edges needs a discretisation with {DESIGN_CTRL} control points per patch, got {m}")
     grid = disc.patch_points.reshape(-1, m, m)  # [patch, i along s, j along t]
     sides = [grid[:, :, 0], grid[:, -1, :], grid[:, ::-1, -1], grid[:, 0, ::-1]]  # bottom, right, top, left
     count: dict[tuple, list] = {}
@@ -70,24 +68,22 @@ def chain(edges: list[np.ndarray]) -> list[list[np.ndarray]]:
 
 @dataclass(frozen=True)
 class Outline:
-    """Closed boundary loops of a design, each (n_edges, 5, 2) edge control polygons, chained.
+    """Closed boundary loops of a design, each (n_edges, m, 2) edge control polygons, chained.
     loops[0] is the outer boundary (counter-clockwise); the others are pores (clockwise)."""
     loops: tuple[np.ndarray, ...]
 
     @classmethod
     def of(cls, disc: Discretisation, points) -> "Outline":
-        """The outline of the control points `points` (n_points, 2) of `disc` (5 per patch)."""
+        """The outline of the control points `points` (n_points, 2) of `disc`."""
+        return cls.deformed(oriented_loops(disc, points), points)
+
+    @classmethod
+    def deformed(cls, loops: list[np.ndarray], points) -> "Outline":
+        """The outline at control points `points` (a deformed state) of loops of point indices that
+        `oriented_loops` ordered and oriented on the reference: the outer boundary stays loops[0] and a
+        pore stays a pore even where the deformation turned it inside out."""
         points = np.asarray(points, float)
-        loops = [points[np.stack(loop)] for loop in chain(boundary_edges(disc))]
-        areas = cls(tuple(loops)).enclosed_areas()
-        outer = int(np.argmax(np.abs(areas)))
-        order = [outer] + [k for k in range(len(loops)) if k != outer]
-        oriented = []
-        for k in order:
-            ccw = areas[k] > 0
-            keep = ccw if k == outer else not ccw
-            oriented.append(loops[k] if keep else loops[k][::-1, ::-1])
-        return cls(tuple(oriented))
+        return cls(tuple(points[loop] for loop in loops))
 
     def scaled(self, factor: float) -> "Outline":
         return Outline(tuple(lp * factor for lp in self.loops))
@@ -101,6 +97,7 @@ class Outline:
         return self.loops[1:]
 
     def polylines(self, per_span: int = 16) -> list[np.ndarray]:
+        """Each loop through `per_span` points per knot span (its edges' joins once)."""
         return [sample_loop(lp, per_span) for lp in self.loops]
 
     def polygon(self, per_span: int = 16):
@@ -112,15 +109,7 @@ class Outline:
 
     def enclosed_areas(self) -> np.ndarray:
         """Signed area inside each loop, exactly (Green's theorem; the integrand is a cubic per span)."""
-        g, w = gauss_legendre_01(2)
-        t = (np.arange(SPANS)[:, None] + g[None]).ravel() / SPANS
-        B, dB = basis_matrix(t, DESIGN_CTRL), basis_matrix(t, DESIGN_CTRL, derivative=1)
-        areas = []
-        for loop in self.loops:
-            x, dx = np.einsum("nk,ekd->end", B, loop), np.einsum("nk,ekd->end", dB, loop)
-            integrand = x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]
-            areas.append(0.5 * np.sum(integrand * np.tile(w, SPANS) / SPANS))
-        return np.asarray(areas)
+        return np.asarray([enclosed_area(loop) for loop in self.loops])
 
     @property
     def area(self) -> float:
@@ -134,30 +123,60 @@ class Outline:
         return (*pts.min(axis=0), *pts.max(axis=0))
 
 
+def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
+    """The boundary loops as point indices (n_edges, m), the outer boundary first and counter-clockwise,
+    the pores clockwise (the material on the left), at control points `points` (the reference)."""
+    points = np.asarray(points, float)
+    loops = [np.stack(loop) for loop in chain(boundary_edges(disc))]
+    areas = np.asarray([enclosed_area(points[loop]) for loop in loops])
+    outer = int(np.argmax(np.abs(areas)))
+    order = [outer] + [k for k in range(len(loops)) if k != outer]
+    oriented = []
+    for k in order:
+        ccw = areas[k] > 0
+        keep = ccw if k == outer else not ccw
+        oriented.append(loops[k] if keep else loops[k][::-1, ::-1])
+    return oriented
+
+
+def enclosed_area(loop: np.ndarray) -> float:
+    """Signed area inside one loop (n_edges, m, 2), exactly (Green's theorem; a cubic per span)."""
+    n = spans(loop)
+    g, w = gauss_legendre_01(2)
+    t = (np.arange(n)[:, None] + g[None]).ravel() / n
+    m = loop.shape[1]
+    B, dB = basis_matrix(t, m), basis_matrix(t, m, derivative=1)
+    x, dx = np.einsum("nk,ekd->end", B, loop), np.einsum("nk,ekd->end", dB, loop)
+    integrand = x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]
+    return float(0.5 * np.sum(integrand * np.tile(w, n) / n))
+
+
 def sample_loop(loop: np.ndarray, per_span: int) -> np.ndarray:
-    """Points along a loop, `per_span` per knot span, each join once: (n_edges * SPANS * per_span, 2)."""
-    t = np.arange(SPANS * per_span) / (SPANS * per_span)
-    B = basis_matrix(t, DESIGN_CTRL)  # (n, 5)
+    """Points along a loop, `per_span` per knot span, each join once: (n_edges * spans * per_span, 2)."""
+    n = spans(loop)
+    t = np.arange(n * per_span) / (n * per_span)
+    B = basis_matrix(t, loop.shape[1])  # (n, m)
     return np.einsum("nk,ekd->end", B, loop).reshape(-1, 2)
 
 
 def bezier_segments(loop: np.ndarray) -> np.ndarray:
-    """The loop as quadratic Bezier segments (n_edges * SPANS, 3, 2), exactly: per span [a, b] the
+    """The loop as quadratic Bezier segments (n_edges * spans, 3, 2), exactly: per span [a, b] the
     end points C(a), C(b) and the control point 2 C(mid) - (C(a) + C(b)) / 2."""
-    a = np.arange(SPANS) / SPANS
-    t = np.stack([a, a + 0.5 / SPANS, a + 1.0 / SPANS], axis=1).ravel()
-    C = np.einsum("nk,ekd->end", basis_matrix(t, DESIGN_CTRL), loop).reshape(len(loop), SPANS, 3, 2)
+    n = spans(loop)
+    a = np.arange(n) / n
+    t = np.stack([a, a + 0.5 / n, a + 1.0 / n], axis=1).ravel()
+    C = np.einsum("nk,ekd->end", basis_matrix(t, loop.shape[1]), loop).reshape(len(loop), n, 3, 2)
     ends = C[:, :, [0, 2]]
     ctrl = 2.0 * C[:, :, 1] - 0.5 * (ends[:, :, 0] + ends[:, :, 1])
     return np.stack([ends[:, :, 0], ctrl, ends[:, :, 1]], axis=2).reshape(-1, 3, 2)
 
 
 def loop_spline(loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One quadratic B-spline through the whole loop: control points (4 n + 1, 2) and knots
-    (4 n + 4,), with double knots where edges join, so that it equals the edges exactly."""
-    n = len(loop)
+    """One quadratic B-spline through the whole loop: control points ((m - 1) n + 1, 2) and knots
+    ((m - 1) n + 4,), with double knots where edges join, so that it equals the edges exactly."""
+    n, per = len(loop), spans(loop)
     ctrl = np.concatenate([loop[0]] + [e[1:] for e in loop[1:]])
-    inner = [k + s / SPANS for k in range(n) for s in range(1, SPANS)]
+    inner = [k + s / per for k in range(n) for s in range(1, per)]
     joins = [float(k) for k in range(1, n) for _ in range(2)]
     knots = np.sort(np.concatenate([[0.0] * 3, inner, joins, [float(n)] * 3]))
     return ctrl, knots

@@ -99,16 +99,24 @@ def figure_deformed(path: Path, sim, task, evaluation: dict, limit: int = 36):
     for ax in axes.ravel():
         ax.axis("off")
     per = evaluation["per_sample"]
+    validity = evaluation.get("_validity") or [None] * len(ts)
     for i, (r, c) in zip(pick, place):
         ax = axes[r, c]
         status = f"error {per[i]:.3g}" if ok[i] else "solve failed"
-        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"{task.describe(ts[i])}\n{status}", colour=MATERIAL["deformed"])
+        invalid = validity[i] is not None and not validity[i].valid
+        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"{task.describe(ts[i])}\n{status}"
+                   + (", NOT PHYSICAL" if invalid else ""), colour=MATERIAL["invalid" if invalid else "deformed"])
         ax.title.set_fontsize(7)
+        if invalid:
+            ax.title.set_color(ACTUATED)
         _draw_target(ax, task, out[i], ts[i])
     handles, labels = axes[place[0]].get_legend_handles_labels()
     shown = "every evaluation sample" if len(pick) == len(ts) else f"{len(pick)} of the {len(ts)} evaluation samples"
+    n_invalid = evaluation.get("invalid_states", 0)
     fig.suptitle(f"{task.name}: {shown}, deformed, on one scale\nmean {task.metric_label} = "
-                 f"{evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
+                 f"{evaluation[task.metric_name]:.3g} {task.metric_unit}"
+                 + (f"; {n_invalid} of {evaluation['checked_states']} states not physical (red: material "
+                    f"inverted or a wall through a wall)" if n_invalid else ""), fontsize=9)
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=110)

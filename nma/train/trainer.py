@@ -24,6 +24,7 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
+from ..geometry.validity import StateChecker, summarise
 from ..schema import ConfigError, OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, NONFINITE_INPUT, SolverError
 from . import checkpoint
@@ -190,9 +191,13 @@ class Trainer:
         ok = np.asarray(info.status) == CONVERGED
         metric = np.asarray(jax.vmap(self.task.metric)(out, ts))
         value = float(np.mean(metric[ok])) if ok.any() else float("nan")
+        # is every converged state a physical object? (no inverted material, no wall through a wall)
+        states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
+        invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         return {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
-                "failed_solves": int((~ok).sum()), "per_sample": metric.tolist(),
-                "eval_actuations": np.asarray(d).tolist(), "_solution": (X, d, u, out, ts, ok)}
+                "failed_solves": int((~ok).sum()), **summarise(states), "invalid_samples": invalid,
+                "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist(),
+                "_solution": (X, d, u, out, ts, ok), "_validity": states}
 
     # -- the loop ---------------------------------------------------------------------------------------
     def checkpoint_dir(self) -> Path:
@@ -248,10 +253,11 @@ class Trainer:
                 if self.world.is_root:
                     ev = self.evaluate()
                     rec[self.task.metric_name] = ev[self.task.metric_name]
+                    rec["invalid_states"] = ev["invalid_states"]
                     last_eval = ev
-                    log.info("step %d: %s = %.4g %s on the evaluation set (%d failed solves)", step,
-                             self.task.metric_name, ev[self.task.metric_name], self.task.metric_unit,
-                             ev["failed_solves"])
+                    log.info("step %d: %s = %.4g %s on the evaluation set (%d failed solves, %d of %d states "
+                             "not physical)", step, self.task.metric_name, ev[self.task.metric_name],
+                             self.task.metric_unit, ev["failed_solves"], ev["invalid_states"], ev["checked_states"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)

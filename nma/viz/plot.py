@@ -20,7 +20,8 @@ def patch_outlines(disc: Discretisation, points, samples: int = 9) -> list[np.nd
     return [np.concatenate([g[:, 0], g[-1, 1:], g[::-1, -1][1:], g[0, ::-1][1:]]) for g in grid]
 
 
-MATERIAL = {"initial": "#8fa8c8", "learned": "#7fb58f", "deformed": "#d9a38f"}  # face colours
+MATERIAL = {"initial": "#8fa8c8", "learned": "#7fb58f", "deformed": "#d9a38f",  # face colours
+            "invalid": "#e06666"}  # a deformed state that is not a physical object
 ACTUATED, TRACKED = "#c0392b", "#2ca02c"
 
 
