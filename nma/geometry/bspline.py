@@ -56,7 +56,8 @@ def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @lru_cache(maxsize=None)
 def element_tables(n_ctrl: int, quad: int):
-    """Bezier-element tables of one patch: every knot span is an element with 9 basis functions.
+    """Bezier-element tables of one patch at the quad x quad Gauss points of each knot span: every span
+    is an element with 9 basis functions.
 
     Returns (local_index, values, grads, weights):
       local_index (S*S, 9)   patch-local control point index i * n_ctrl + j of each element function
@@ -64,22 +65,37 @@ def element_tables(n_ctrl: int, quad: int):
       grads       (S*S, Q, 9, 2) dN/dxi, dN/deta (parametric, patch coordinates in [0, 1]^2)
       weights     (S*S, Q)   Gauss weights times the span area
     """
+    return _tables(n_ctrl, *gauss_legendre_01(quad))
+
+
+CHECK_POINTS = np.linspace(0.0, 1.0, 4)  # per span and direction: where det F of a quadratic map is a
+# polynomial of bidegree (3, 3) determined by its values (nma/geometry/validity.py), corners included
+
+
+@lru_cache(maxsize=None)
+def check_tables(n_ctrl: int):
+    """element_tables at the 4 x 4 CHECK_POINTS of each element, each weighted by a 16th of its span area."""
+    return _tables(n_ctrl, CHECK_POINTS, np.full(len(CHECK_POINTS), 1.0 / len(CHECK_POINTS)))
+
+
+def _tables(n_ctrl: int, points: np.ndarray, point_weights: np.ndarray):
+    """The tables of element_tables at the tensor grid of 1D `points` in [0, 1] of each span."""
     spans = n_ctrl - DEGREE
     h = 1.0 / spans
-    gx, gw = gauss_legendre_01(quad)
+    k = len(points)
     local, vals, grads, wts = [], [], [], []
     for si in range(spans):
-        xi = (si + gx) * h
+        xi = (si + points) * h
         Bx, dBx = basis_matrix(xi, n_ctrl)[:, si:si + 3], basis_matrix(xi, n_ctrl, 1)[:, si:si + 3]
         for sj in range(spans):
-            eta = (sj + gx) * h
+            eta = (sj + points) * h
             By, dBy = basis_matrix(eta, n_ctrl)[:, sj:sj + 3], basis_matrix(eta, n_ctrl, 1)[:, sj:sj + 3]
-            # quadrature point (p, q) -> row p * quad + q ; function (a, b) -> column a * 3 + b
-            v = np.einsum("pa,qb->pqab", Bx, By).reshape(quad * quad, 9)
-            dxi = np.einsum("pa,qb->pqab", dBx, By).reshape(quad * quad, 9)
-            deta = np.einsum("pa,qb->pqab", Bx, dBy).reshape(quad * quad, 9)
+            # point (p, q) -> row p * k + q ; function (a, b) -> column a * 3 + b
+            v = np.einsum("pa,qb->pqab", Bx, By).reshape(k * k, 9)
+            dxi = np.einsum("pa,qb->pqab", dBx, By).reshape(k * k, 9)
+            deta = np.einsum("pa,qb->pqab", Bx, dBy).reshape(k * k, 9)
             local.append([(si + a) * n_ctrl + (sj + b) for a in range(3) for b in range(3)])
             vals.append(v)
             grads.append(np.stack([dxi, deta], axis=-1))
-            wts.append(np.outer(gw, gw).reshape(-1) * h * h)
+            wts.append(np.outer(point_weights, point_weights).reshape(-1) * h * h)
     return (np.array(local), np.array(vals), np.array(grads), np.array(wts))

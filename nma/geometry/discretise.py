@@ -14,7 +14,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .bspline import DESIGN_CTRL, basis_matrix, element_tables, gauss_legendre_01, greville, refinement_operator
+from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
+                      refinement_operator)
 from ..fidelity import Choice, resolve
 from ..schema import ConfigError, Fidelity
 from .design import make_design
@@ -33,6 +34,8 @@ class Discretisation:
     basis_values: np.ndarray      # (S2, Q, 9)  same tables for every patch
     basis_grads: np.ndarray       # (S2, Q, 9, 2) parametric derivatives
     quad_weights: np.ndarray      # (S2, Q)
+    check_grads: np.ndarray       # (S2, 16, 9, 2) parametric derivatives at the 4 x 4 check points
+    check_weights: np.ndarray     # (S2, 16) a 16th of the element's parametric area each
     dirichlet_dofs: np.ndarray    # (nD,) flat dof index point * 2 + component
     actuation_matrix: np.ndarray  # (nD, n_actuations): u_D = A @ d
     free_dofs: np.ndarray         # (nf,)
@@ -176,6 +179,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     patch_points = point_of.reshape(P, m * m)
 
     local, values, grads, weights = element_tables(m, quad)
+    _, _, check_grads, check_weights = check_tables(m)
     elem_points = patch_points[:, local]  # (P, S2, 9)
 
     # Dirichlet groups, pinned / clamped points
@@ -232,7 +236,8 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     return Discretisation(
         spec=spec, design=design, fidelity=fidelity, n_points=n_points, patch_points=patch_points,
         representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
-        quad_weights=weights, dirichlet_dofs=dirichlet, actuation_matrix=A, free_dofs=free,
+        quad_weights=weights, check_grads=check_grads, check_weights=check_weights, dirichlet_dofs=dirichlet,
+        actuation_matrix=A, free_dofs=free,
         external_force=f_ext, tracked=tracked, group_points=group_points, fidelity_choice=choice)
 
 

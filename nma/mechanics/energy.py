@@ -1,8 +1,18 @@
 """Quadrature of the strain energy over Bezier elements: energy, internal force, element tangents.
 
 Arrays are laid out (P, S2, Q, ...): patches x elements per patch x Gauss points.  The element
-tangent is the F-space form K_e = sum_q w G^T C G with C = dP/dF (4 x 4 per point), far cheaper
-than autodiff Hessians of whole patches.
+tangent is the F-space form K_e = sum_q w G^T C G (4 x 4 per point), far cheaper than autodiff
+Hessians of whole patches.
+
+The Gauss points do not see all of an element: a state can be inverted between them (det F < 0 near an
+element's corner or edge) while W is finite at every one, and a coarse model then reaches equilibria
+that are not physical objects.  The exact integral of W over the element would be infinite there.
+With fidelity.inversion_barrier = J_hat > 0, det F is also evaluated at 4 x 4 check points of every
+element (corners included: where nma.geometry.validity samples it) and a barrier
+    b(J) = -kappa (1 - J / J_hat)^2 log(J / J_hat)   for J < J_hat,   0 above
+(C2 at J_hat, infinite at J = 0: the barrier of incremental potential contact, Li et al. 2020, on J)
+weighted by a 16th of the element's area joins the energy, and Newton's step bound keeps det F > 0 at
+the check points too.  Where det F >= J_hat at every check point, nothing changes.
 """
 from __future__ import annotations
 
@@ -20,33 +30,82 @@ class Quadrature(NamedTuple):
     grads: jnp.ndarray    # (P, S2, Q, 9, 2) dN/dX
     weights: jnp.ndarray  # (P, S2, Q) Gauss weight x det(dX/dxi)
     det: jnp.ndarray      # (P, S2, Q) det(dX/dxi), > 0 for a valid geometry
+    check_grads: jnp.ndarray    # (P, S2, 16, 9, 2) dN/dX at the 4 x 4 check points
+    check_weights: jnp.ndarray  # (P, S2, 16) a 16th of the element's area at each
+
+
+def _physical(dN: jnp.ndarray, Xe: jnp.ndarray):
+    """dN/dX (P, S2, Q, 9, 2) and det(dX/dxi) (P, S2, Q) from parametric derivatives dN (S2, Q, 9, 2)."""
+    J0 = jnp.einsum("sqad,psai->psqid", dN, Xe)                        # dX_i / dxi_d
+    det = det2(J0)
+    safe = jnp.where(det > 0, det, 1.0)  # a check point where the reference map degenerates is skipped
+    inv = jnp.stack([jnp.stack([J0[..., 1, 1], -J0[..., 0, 1]], -1),
+                     jnp.stack([-J0[..., 1, 0], J0[..., 0, 0]], -1)], -2) / safe[..., None, None]
+    return jnp.einsum("sqad,psqdj->psqaj", dN, inv), det
 
 
 def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
     """Physical basis gradients and weights from the reference control points X (n_points, 2)."""
     Xe = X[disc.elem_points]                                           # (P, S2, 9, 2)
-    dN = jnp.asarray(disc.basis_grads)                                 # (S2, Q, 9, 2)
-    J0 = jnp.einsum("sqad,psai->psqid", dN, Xe)                        # dX_i / dxi_d
-    det = det2(J0)
-    inv = jnp.stack([jnp.stack([J0[..., 1, 1], -J0[..., 0, 1]], -1),
-                     jnp.stack([-J0[..., 1, 0], J0[..., 0, 0]], -1)], -2) / det[..., None, None]
-    G = jnp.einsum("sqad,psqdj->psqaj", dN, inv)                       # dN/dX_j
-    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det)
+    G, det = _physical(jnp.asarray(disc.basis_grads), Xe)
+    Gc, detc = _physical(jnp.asarray(disc.check_grads), Xe)
+    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, Gc,
+                      jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
 
 
-def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray) -> jnp.ndarray:
+def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, at_checks: bool = False) -> jnp.ndarray:
+    """F at the Gauss points (P, S2, Q, 2, 2), or at the check points."""
     ue = u[disc.elem_points]                                           # (P, S2, 9, 2)
-    return jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", ue, quad.grads)
+    return jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", ue, quad.check_grads if at_checks else quad.grads)
+
+
+def _barrier(J, j_hat, kappa):
+    """b(J), b'(J), b''(J) of the inversion barrier (0 for J >= j_hat; callers keep J > 0)."""
+    def b(J):
+        s = jnp.minimum(J / j_hat, 1.0)
+        return -kappa * (1.0 - s) ** 2 * jnp.log(jnp.where(s > 0, s, 1.0))
+
+    db = jax.grad(b)
+    flat = J.reshape(-1)
+    values = [jax.vmap(f)(flat).reshape(J.shape) for f in (b, db, jax.grad(db))]
+    return [jnp.where(J < j_hat, v, 0.0) for v in values]
 
 
 def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
-    """Integral of W over the reference domain; +inf if any Gauss point is inverted (J <= 0)."""
+    """Integral of W over the reference domain (and the inversion barrier); +inf if any Gauss point, or
+    with the barrier any check point, is inverted (J <= 0)."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
     J = det2(F)
     safe = jnp.where(J[..., None, None] > 0, F, jnp.eye(2))
     W = jnp.vectorize(lambda f: neo_hookean(f, mu, kappa), signature="(2,2)->()")(safe)
-    return jnp.where(jnp.all(J > 0), jnp.sum(quad.weights * W), jnp.inf)
+    energy, valid = jnp.sum(quad.weights * W), jnp.all(J > 0)
+    j_hat = disc.fidelity.inversion_barrier
+    if j_hat > 0:
+        Jc = det2(deformation_gradient(disc, quad, u, at_checks=True))
+        energy = energy + jnp.sum(quad.check_weights * _barrier(jnp.where(Jc > 0, Jc, j_hat), j_hat, kappa)[0])
+        valid = valid & jnp.all((Jc > 0) | (quad.check_weights == 0))
+    return jnp.where(valid, energy, jnp.inf)
+
+
+def _barrier_terms(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, kappa):
+    """Energy, element forces (P, S2, 9, 2) and element tangents (P, S2, 9, 2, 9, 2) of the barrier:
+    dJ/du_ai = cof(F)_ij G_aj and d2J/du_ai du_bk = eps_ik (G_a x G_b) in 2D."""
+    j_hat = disc.fidelity.inversion_barrier
+    G = quad.check_grads
+    F = deformation_gradient(disc, quad, u, at_checks=True)
+    J = det2(F)
+    b, db, ddb = _barrier(jnp.where(J > 0, J, j_hat), j_hat, kappa)
+    w = quad.check_weights
+    cof = jnp.stack([jnp.stack([F[..., 1, 1], -F[..., 1, 0]], -1),
+                     jnp.stack([-F[..., 0, 1], F[..., 0, 0]], -1)], -2)          # dJ/dF
+    dJ = jnp.einsum("psqij,psqaj->psqai", cof, G)                                # (P, S2, C, 9, 2)
+    cross = G[..., :, None, 0] * G[..., None, :, 1] - G[..., :, None, 1] * G[..., None, :, 0]  # (.., 9, 9)
+    eps = jnp.array([[0.0, 1.0], [-1.0, 0.0]])
+    fe = jnp.einsum("psq,psqai->psai", w * db, dJ)
+    Ke = (jnp.einsum("psq,psqai,psqbk->psaibk", w * ddb, dJ, dJ)
+          + jnp.einsum("psq,psqab,ik->psaibk", w * db, cross, eps))
+    return jnp.sum(w * b), fe, Ke
 
 
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
@@ -60,10 +119,14 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     C = tangent(F, mu, kappa)
     wG = quad.weights[..., None, None] * quad.grads                    # (P, S2, Q, 9, 2)
     fe = jnp.einsum("psqij,psqaj->psai", Pk, wG)
-    force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
     H = jnp.einsum("psqaj,psqijkl->psqaikl", wG, C)
     Ke = jnp.einsum("psqaikl,psqbl->psaibk", H, quad.grads)
-    return jnp.sum(quad.weights * W), force, Ke.reshape(-1, 18, 18)
+    energy = jnp.sum(quad.weights * W)
+    if disc.fidelity.inversion_barrier > 0:
+        eb, fb, Kb = _barrier_terms(disc, quad, u, kappa)
+        energy, fe, Ke = energy + eb, fe + fb, Ke + Kb
+    force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
+    return energy, force, Ke.reshape(-1, 18, 18)
 
 
 def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
@@ -71,11 +134,22 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
 
 
 def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray) -> jnp.ndarray:
-    """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point.
+    """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point (and, with
+    the inversion barrier, at every check point).
 
     det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the bound is the smallest positive root."""
-    F = deformation_gradient(disc, quad, u)
-    dF = jnp.einsum("psai,psqaj->psqij", du[disc.elem_points], quad.grads)
+    bound = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
+                                                                        quad.grads))
+    if disc.fidelity.inversion_barrier > 0:
+        dF = jnp.einsum("psai,psqaj->psqij", du[disc.elem_points], quad.check_grads)
+        Fc = deformation_gradient(disc, quad, u, at_checks=True)
+        skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
+        bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
+    return bound
+
+
+def _first_root(F, dF):
+    """The smallest positive t with det(F + t dF) = 0 over all points (inf if none)."""
     c0 = det2(F)
     c1 = F[..., 0, 0] * dF[..., 1, 1] + dF[..., 0, 0] * F[..., 1, 1] \
         - F[..., 0, 1] * dF[..., 1, 0] - dF[..., 0, 1] * F[..., 1, 0]
