@@ -12,7 +12,10 @@ The report: bounding box, material area, porosity (pore area over the area the o
 encloses), the minimum ligament width, the narrowest material between two boundary curves (pore
 to pore, or pore to outer boundary) and where it is, and (`states=true`, the default) whether the design
 stays a physical object in every deformed state of its task's evaluation set (evaluation_states: how
-many states are not, and why; nma/geometry/validity.py).
+many states are not, and why; nma/geometry/validity.py).  With `load_cases=true` (translation runs),
+load_cases.png beside the file: the part deformed under the paper's Fig. 5 loads (tension, compression,
+one-sided compression, at load_fraction x d_max) drawn over the undeformed part, with the pointer's
+move and each state's validity in the report.
 """
 from __future__ import annotations
 
@@ -39,7 +42,10 @@ def validate(cfg: DictConfig) -> ExportConfig:
     from .run import load_run
 
     settings = build(ExportConfig, cfg)
-    load_run(settings.run)  # the run directory must hold a config and a checkpoint before any work
+    run, _, _ = load_run(settings.run)  # the run directory must hold a config and a checkpoint before any work
+    if settings.load_cases and run.task.name != "translation":
+        raise ConfigError(f"load_cases=true: the load cases (tension, compression, one-sided compression) are "
+                          f"the translation part's (the paper's Fig. 5); run={settings.run} is a {run.task.name} run")
     return settings
 
 
@@ -48,8 +54,6 @@ def trained_outline(run_dir) -> Outline:
     from .runtime import configure_jax
 
     configure_jax()
-    import jax.numpy as jnp
-
     from .geometry.discretise import discretise
     from .geometry.scene import scene_from_config
     from .run import load_run
@@ -57,13 +61,20 @@ def trained_outline(run_dir) -> Outline:
 
     settings, params, _ = load_run(run_dir)
     disc = discretise(scene_from_config(settings.scene), Fidelity(5, 2))  # the design nets themselves
+    return Outline.of(disc, disc.reference_points(_geometry(disc, params, run_dir)))
+
+
+def _geometry(disc, params, run_dir) -> dict:
+    """A checkpoint's geometry parameters, checked against what the scene needs."""
+    import jax.numpy as jnp
+
     geom = {}
     for name, init in disc.init_params().items():
         saved = np.asarray(params.get("geom", {}).get(name, init))
         if saved.shape != init.shape:
             raise ConfigError(f"run={run_dir}: geometry {name} has shape {saved.shape}, the scene needs {init.shape}")
         geom[name] = jnp.asarray(saved, init.dtype)
-    return Outline.of(disc, disc.reference_points(geom))
+    return geom
 
 
 def fabrication_report(outline: Outline, samples: int) -> dict:
@@ -168,6 +179,73 @@ def evaluation_states(run_dir) -> dict:
             "fidelity": f"{fidelity.ctrl_per_patch} x {fidelity.quad_points}"}
 
 
+# the paper's Fig. 5: the translation part pulled at both sides, pushed at both, pushed at one; the
+# signs of its two actuations (left side moves by -d0 in x, right side by -d1)
+LOAD_CASES = {"tension": (1.0, -1.0), "compression": (-1.0, 1.0), "one-sided compression": (0.0, 1.0)}
+
+
+def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict:
+    """The trained translation part deformed under LOAD_CASES (actuation fraction x d_max), each outline
+    drawn over the undeformed part (the picture a maker compares with the printed part under the same
+    loads), in millimetres; per case the pointer's displacement and whether the state is physical."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .geometry.discretise import discretise
+    from .geometry.scene import scene_from_config
+    from .geometry.validity import StateChecker
+    from .mechanics.material import material
+    from .run import load_run
+    from .simulator import Simulator
+    from .solver.newton import SolverError
+
+    settings, params, _ = load_run(run_dir)
+    sim = Simulator(discretise(scene_from_config(settings.scene), settings.fidelity), settings.solver.linear,
+                    settings.solver.newton(), settings.solver.workers)
+    geom = _geometry(sim.disc, params, run_dir)
+    X = np.asarray(sim.reference_points(geom))
+    checker = StateChecker(sim.disc, X)
+    mat = material(settings.material.E, settings.material.nu)
+    rest = [scale * p for p in Outline.deformed(checker.loops, X).polylines(8)]
+    pointer0 = np.asarray(sim.tracked(X, np.zeros_like(X))["pointer"])
+    fig, axes = plt.subplots(1, len(LOAD_CASES), figsize=(4.2 * len(LOAD_CASES), 4.6), sharex=True, sharey=True)
+    cases = {}
+    for ax, (name, signs) in zip(axes, LOAD_CASES.items()):
+        d = fraction * settings.task.d_max * np.asarray(signs)
+        for line in rest:
+            ax.plot(*np.vstack([line, line[:1]]).T, color="#9a9a9a", lw=0.8)
+        try:
+            sol = sim.solve(geom, d, mat)
+        except SolverError as err:
+            cases[name] = {"actuation": d.tolist(), "converged": False, "error": str(err)}
+            ax.set_title(f"{name}: solve failed", fontsize=9)
+            continue
+        state = checker.check(sol.u)
+        moved = np.asarray(sim.tracked(sol.X, sol.u)["pointer"]) - pointer0
+        cases[name] = {"actuation": d.tolist(), "converged": True, "pointer_displacement_mm": (scale * moved).tolist(),
+                       "valid": state.valid, "problems": state.problems()}
+        for line in Outline.deformed(checker.loops, X + np.asarray(sol.u)).polylines(8):
+            ax.plot(*np.vstack([scale * line, scale * line[:1]]).T, color="#c0392b" if not state.valid else "#1f3fbf",
+                    lw=1.0)
+        ax.annotate("", scale * (pointer0 + moved), scale * pointer0,
+                    arrowprops=dict(arrowstyle="->", color="#2ca02c", lw=1.5))
+        ax.set_title(f"{name}: d = {np.round(d, 2).tolist()}\npointer moves "
+                     f"({scale * moved[0]:+.2f}, {scale * moved[1]:+.2f}) mm"
+                     + ("" if state.valid else ", NOT PHYSICAL"), fontsize=9)
+    for ax in axes:
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [mm]")
+    axes[0].set_ylabel("y [mm]")
+    fig.suptitle("the learned part (grey: undeformed) under the paper's load cases (blue: deformed; red: deformed "
+                 "but not a physical object; green: the pointer's move)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return {"file": str(path), "fraction_of_d_max": fraction, "cases": cases}
+
+
 def export(s: ExportConfig) -> dict:
     outline = trained_outline(s.run).scaled(s.scale)
     path = Path(s.output) if s.output else Path(s.run) / "export" / f"design.{s.format}"
@@ -182,6 +260,8 @@ def export(s: ExportConfig) -> dict:
         report["volume"] = write_stl(outline, path, s.thickness, s.samples)
     if s.states:
         report["evaluation_states"] = evaluation_states(s.run)
+    if s.load_cases:
+        report["load_cases"] = write_load_cases(s.run, s.load_fraction, path.parent / "load_cases.png", s.scale)
     result = {"file": str(path), "format": s.format, "units": "mm", "scale_mm_per_unit": s.scale, **report}
     (path.parent / "fabrication.json").write_text(json.dumps(json_safe(result), indent=1, allow_nan=False))
     return result

@@ -505,6 +505,8 @@ class ExportConfig(Schema):
                                                 "(STL, the fabrication report)")
     output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
     states: bool = True                     # report whether every deformed state of the task's evaluation set is physical
+    load_cases: bool = False                # translation: the paper's Fig. 5 load cases, deformed over the part
+    load_fraction: float = bounded(0.5, "(0, 1]", doc="load_cases: the actuation as a fraction of the task's d_max")
 
 
 @dataclass

@@ -162,6 +162,8 @@ def test_export_command_writes_the_file_and_report(trained_run, design):
     ({"format": "obj"}, "format must be one of ['svg', 'dxf', 'stl']"),
     ({"scale": 0.0}, "scale must be a finite number in (0, inf)"),
     ({"run": "/nonexistent/run"}, "is not a training run directory"),
+    ({"load_cases": True}, "load_cases=true: the load cases (tension, compression, one-sided compression) are the "
+                           "translation part's"),
 ])
 def test_bad_export_settings_name_the_field(trained_run, overrides, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):

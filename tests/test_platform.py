@@ -136,7 +136,13 @@ def test_every_evaluated_state_is_checked_and_the_export_says_so(translation_run
     assert states["valid"] == (metrics["invalid_states"] == 0)
     run = copy_run(translation_run, tmp_path / "run")
     (run / "metrics.json").unlink()
-    again = export(ExportConfig(run=str(run), output=str(tmp_path / "b.svg")))["evaluation_states"]
+    again = export(ExportConfig(run=str(run), output=str(tmp_path / "b.svg"), load_cases=True))
+    # the paper's Fig. 5 in simulation: tension and compression move the pointer in opposite directions
+    cases = again["load_cases"]["cases"]
+    assert list(cases) == ["tension", "compression", "one-sided compression"] and all(c["converged"] for c in cases.values())
+    assert np.dot(cases["tension"]["pointer_displacement_mm"], cases["compression"]["pointer_displacement_mm"]) < 0
+    assert (tmp_path / "load_cases.png").stat().st_size > 20_000
+    again = again["evaluation_states"]
     assert again["source"].startswith("solved again")
     assert again["invalid_states"] == metrics["invalid_states"] and again["checked_states"] == 4
     assert again["min_J"] == pytest.approx(metrics["min_J"], rel=1e-8)
