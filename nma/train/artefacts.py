@@ -261,17 +261,23 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
                              gridspec_kw={"height_ratios": ([1, 2.2] if images else [1]) * 2}, squeeze=False)
     for a in axes.ravel():
         a.axis("off")
+    validity = evaluation.get("_validity") or [None] * len(ts)
     for j, i in enumerate(pick):
         row, col = divmod(j, cols)
         label = int(ts[i][0])
         shown = task.decode(np.asarray(out[i]))
         verdict = "right" if shown == label else f"shows {shown if shown is not None else '?'}"
+        if validity[i] is not None and not validity[i].valid:
+            verdict += ", NOT PHYSICAL"
         _colour_panel(axes[row * (1 + images) + images, col], task, np.asarray(X + u[i]), geom,
                       f"digit {label}: {verdict}")
         if images:
             axes[row * 2, col].imshow(np.asarray(ts[i][1:]).reshape(28, 28), cmap="Greys")
+    n_invalid = evaluation.get("invalid_states", 0)
     fig.suptitle(f"{task.name} ({'lookup table' if task.lookup else 'held-out images'}): "
-                 f"{task.metric_label} = {evaluation[task.metric_name]:.3g} {task.metric_unit}", fontsize=9)
+                 f"{task.metric_label} = {evaluation[task.metric_name]:.3g} {task.metric_unit}"
+                 + (f"; {n_invalid} of {evaluation['checked_states']} states not physical" if n_invalid else ""),
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
