@@ -34,11 +34,13 @@ class Quadrature(NamedTuple):
     check_weights: jnp.ndarray  # (P, S2, 16) a 16th of the element's area at each
 
 
-def _physical(dN: jnp.ndarray, Xe: jnp.ndarray):
-    """dN/dX (P, S2, Q, 9, 2) and det(dX/dxi) (P, S2, Q) from parametric derivatives dN (S2, Q, 9, 2)."""
+def _physical(dN: jnp.ndarray, Xe: jnp.ndarray, skip_degenerate: bool = False):
+    """dN/dX (P, S2, Q, 9, 2) and det(dX/dxi) (P, S2, Q) from parametric derivatives dN (S2, Q, 9, 2).
+    `skip_degenerate`: where det(dX/dxi) <= 0 (a check point at a degenerate corner) dN/dX is left finite
+    (its weight is 0); at Gauss points such a reference is invalid and gives non-finite values."""
     J0 = jnp.einsum("sqad,psai->psqid", dN, Xe)                        # dX_i / dxi_d
     det = det2(J0)
-    safe = jnp.where(det > 0, det, 1.0)  # a check point where the reference map degenerates is skipped
+    safe = jnp.where(det > 0, det, 1.0) if skip_degenerate else det
     inv = jnp.stack([jnp.stack([J0[..., 1, 1], -J0[..., 0, 1]], -1),
                      jnp.stack([-J0[..., 1, 0], J0[..., 0, 0]], -1)], -2) / safe[..., None, None]
     return jnp.einsum("sqad,psqdj->psqaj", dN, inv), det
@@ -48,9 +50,12 @@ def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
     """Physical basis gradients and weights from the reference control points X (n_points, 2)."""
     Xe = X[disc.elem_points]                                           # (P, S2, 9, 2)
     G, det = _physical(jnp.asarray(disc.basis_grads), Xe)
-    Gc, detc = _physical(jnp.asarray(disc.check_grads), Xe)
-    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, Gc,
-                      jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
+    if disc.fidelity.inversion_barrier > 0:
+        Gc, detc = _physical(jnp.asarray(disc.check_grads), Xe, skip_degenerate=True)
+        checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
+    else:  # no check points: nothing to compute (or to differentiate in the adjoint)
+        checks = (jnp.zeros(det.shape[:2] + (0, 9, 2), X.dtype), jnp.zeros(det.shape[:2] + (0,), X.dtype))
+    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, *checks)
 
 
 def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, at_checks: bool = False) -> jnp.ndarray:
