@@ -74,4 +74,7 @@ def resolve(fidelity: Fidelity, scene: str) -> tuple[Fidelity, Choice | None]:
     if fidelity.tolerance is None:
         return fidelity, None
     choice = choose(scene, fidelity.tolerance)
+    # the front sets the discretisation; what it does not measure is the user's
+    choice = dataclasses.replace(choice, fidelity=dataclasses.replace(
+        choice.fidelity, inversion_barrier=fidelity.inversion_barrier))
     return choice.fidelity, choice

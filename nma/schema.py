@@ -153,12 +153,12 @@ class Fidelity(Schema):
     prefix: ClassVar[str] = "fidelity"
     ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
     quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
-    inversion_barrier: float = bounded(0.0, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
-                                       "every element, corners included, where the Gauss points do not see, and "
-                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
                                          "error allowed against the 14 x 5 reference; the scene's measured front "
                                          "then sets the two above")
+    inversion_barrier: float = bounded(0.0, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
+                                       "every element, corners included, where the Gauss points do not see, and "
+                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
 
     def check(self):
         if (self.ctrl_per_patch - 2) % 3:
