@@ -105,18 +105,14 @@ def test_colour_gradients_digital_mnist():
                       jax.random.PRNGKey(8), ["colours", "actuation"])
 
 
-def test_gradients_with_the_inversion_barrier_acting():
-    """The random design of tests/test_barrier.py whose equilibrium leans on the barrier (det F at check
-    points near J_hat): the adjoint carries the barrier's force and tangent."""
+def test_gradients_with_the_inversion_barrier_acting(barrier_simulator):
+    """conftest.barrier_case, whose equilibrium leans on the barrier (det F at check points near J_hat):
+    the adjoint carries the barrier's force and tangent."""
+    from conftest import barrier_case
     from nma.geometry.validity import StateChecker
-    from nma.schema import Fidelity
 
-    rng = np.random.default_rng(0)
-    for _ in range(8):
-        radii, d = rng.uniform(0.1, 0.9, (24, 16)), rng.uniform(-4.0, 4.0, 2)
-    disc = discretise(scene_from_config(config.load("scene", "translation")), Fidelity(5, 2, inversion_barrier=0.05))
-    sim = Simulator(disc, "pardiso", TIGHT)
-    params, mat = {"radii": jnp.asarray(radii)}, material(0.07, 0.3)
+    radii, d = barrier_case()
+    sim, params, mat = barrier_simulator, {"radii": jnp.asarray(radii)}, material(0.07, 0.3)
     sol = sim.solve(params, jnp.asarray(d), mat)
-    assert StateChecker(disc, sol.X).check(sol.u).min_J < 0.05  # the barrier is in its range here
+    assert StateChecker(sim.disc, sol.X).check(sol.u).min_J < 0.05  # the barrier is in its range here
     check_directional(sim, params, jnp.asarray(d), mat, jax.random.PRNGKey(0), ["radii", "actuation", "material"])
