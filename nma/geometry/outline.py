@@ -10,7 +10,7 @@ quadratic Bezier segment.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -109,7 +109,7 @@ class Outline:
 
     def enclosed_areas(self) -> np.ndarray:
         """Signed area inside each loop, exactly (Green's theorem; the integrand is a cubic per span)."""
-        return np.asarray([enclosed_area(loop) for loop in self.loops])
+        return np.asarray([float(enclosed_area(loop)) for loop in self.loops])
 
     @property
     def area(self) -> float:
@@ -128,7 +128,7 @@ def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
     the pores clockwise (the material on the left), at control points `points` (the reference)."""
     points = np.asarray(points, float)
     loops = [np.stack(loop) for loop in chain(boundary_edges(disc))]
-    areas = np.asarray([enclosed_area(points[loop]) for loop in loops])
+    areas = np.asarray([float(enclosed_area(points[loop])) for loop in loops])
     outer = int(np.argmax(np.abs(areas)))
     order = [outer] + [k for k in range(len(loops)) if k != outer]
     oriented = []
@@ -139,24 +139,33 @@ def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
     return oriented
 
 
-def enclosed_area(loop: np.ndarray) -> float:
-    """Signed area inside one loop (n_edges, m, 2), exactly (Green's theorem; a cubic per span)."""
-    n = spans(loop)
+@lru_cache(maxsize=None)
+def _area_tables(m: int):
+    """Basis, derivative and weights at 2 Gauss points per span of an edge with m control points."""
+    n = m - 2
     g, w = gauss_legendre_01(2)
     t = (np.arange(n)[:, None] + g[None]).ravel() / n
-    m = loop.shape[1]
-    B, dB = basis_matrix(t, m), basis_matrix(t, m, derivative=1)
-    x, dx = np.einsum("nk,ekd->end", B, loop), np.einsum("nk,ekd->end", dB, loop)
-    integrand = x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]
-    return float(0.5 * np.sum(integrand * np.tile(w, n) / n))
+    return basis_matrix(t, m), basis_matrix(t, m, derivative=1), np.tile(w, n) / n
+
+
+@lru_cache(maxsize=None)
+def _line_basis(m: int, per_span: int) -> np.ndarray:
+    n = m - 2
+    return basis_matrix(np.arange(n * per_span) / (n * per_span), m)
+
+
+def enclosed_area(loop: np.ndarray):
+    """Signed area inside a loop (..., n_edges, m, 2), exactly (Green's theorem; a cubic per span)."""
+    B, dB, w = _area_tables(loop.shape[-2])
+    x, dx = np.einsum("nk,...ekd->...end", B, loop), np.einsum("nk,...ekd->...end", dB, loop)
+    return 0.5 * np.sum((x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]) * w, axis=(-2, -1))
 
 
 def sample_loop(loop: np.ndarray, per_span: int) -> np.ndarray:
-    """Points along a loop, `per_span` per knot span, each join once: (n_edges * spans * per_span, 2)."""
-    n = spans(loop)
-    t = np.arange(n * per_span) / (n * per_span)
-    B = basis_matrix(t, loop.shape[1])  # (n, m)
-    return np.einsum("nk,ekd->end", B, loop).reshape(-1, 2)
+    """Points along a loop (..., n_edges, m, 2), `per_span` per knot span, each join once:
+    (..., n_edges * spans * per_span, 2)."""
+    points = np.einsum("nk,...ekd->...end", _line_basis(loop.shape[-2], per_span), loop)
+    return points.reshape(*loop.shape[:-3], -1, 2)
 
 
 def bezier_segments(loop: np.ndarray) -> np.ndarray:

@@ -24,14 +24,14 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from .bspline import basis_matrix, gauss_legendre_01
+from .bspline import CHECK_POINTS, basis_matrix
 from .discretise import Discretisation
-from .outline import oriented_loops
+from .outline import enclosed_area, oriented_loops, sample_loop
 
 PER_SPAN = 8       # polyline points per knot span of a boundary edge
 SUBDIVISIONS = 3   # halvings of an element whose Bernstein bound leaves the sign of det F open
 _CUBIC = 3         # det(dx/dxi) of a quadratic map: bidegree (3, 3)
-_NODES = np.linspace(0.0, 1.0, _CUBIC + 1)
+_NODES = CHECK_POINTS  # 4 per span and direction, ends included: the barrier's check points too
 
 
 def _bernstein(t: np.ndarray) -> np.ndarray:
@@ -119,14 +119,6 @@ class StateChecker:
         self.disc, self.per_span = disc, per_span
         self.X = np.asarray(X, float)
         self.loops = oriented_loops(disc, self.X)
-        m = disc.fidelity.ctrl_per_patch
-        n_spans = m - 2
-        # one table each for the polylines and for the enclosed areas (Green's theorem, 2 Gauss points
-        # per span: exact for the cubic integrand), shared by every loop
-        self._line = basis_matrix(np.arange(n_spans * per_span) / (n_spans * per_span), m)
-        g, w = gauss_legendre_01(2)
-        t = ((np.arange(n_spans)[:, None] + g[None]).ravel()) / n_spans
-        self._area = (basis_matrix(t, m), basis_matrix(t, m, 1), np.tile(w, n_spans) / n_spans)
         self.names = ["outer boundary"] + ["pore at ({:.3g}, {:.3g})".format(*line.mean(axis=0))
                                            for line in self._polylines(self.X)[1:]]
         self.area_signs = np.sign(self._areas(self.X))
@@ -138,15 +130,11 @@ class StateChecker:
         self.margin = 0.5 * float(np.median([np.ptp(p, axis=0).max() for p in pores])) if pores else 0.0
 
     def _polylines(self, x: np.ndarray) -> list[np.ndarray]:
-        return [np.einsum("nk,ekd->end", self._line, x[loop]).reshape(-1, 2) for loop in self.loops]
+        return [sample_loop(x[loop], self.per_span) for loop in self.loops]
 
     def _areas(self, x: np.ndarray) -> np.ndarray:
-        B, dB, w = self._area
-        out = []
-        for loop in self.loops:
-            p, dp = np.einsum("nk,ekd->end", B, x[loop]), np.einsum("nk,ekd->end", dB, x[loop])
-            out.append(0.5 * np.sum((p[..., 0] * dp[..., 1] - p[..., 1] * dp[..., 0]) * w))
-        return np.asarray(out)
+        """Enclosed areas (..., loops) of states x (..., n_points, 2)."""
+        return np.stack([enclosed_area(x[..., loop, :]) for loop in self.loops], axis=-1)
 
     @cached_property
     def resolution(self) -> str:
@@ -217,7 +205,7 @@ class StateChecker:
         import shapely
 
         n, R = len(x), len(self.loops)
-        lines = [np.einsum("nk,sekd->send", self._line, x[:, loop]).reshape(n, -1, 2) for loop in self.loops]
+        lines = [sample_loop(x[:, loop], self.per_span) for loop in self.loops]
         lines = [np.concatenate([p, p[:, :1]], axis=1) for p in lines]  # closed
         sizes = np.array([p.shape[1] for p in lines])
         coords = np.concatenate(lines, axis=1).reshape(-1, 2)  # state-major, then loop
@@ -231,7 +219,7 @@ class StateChecker:
         near = (apart.max(axis=-1) <= self.margin) & np.triu(np.ones((R, R), bool), 1)[None]
         s, a, b = np.nonzero(near)
         dist = shapely.distance(rings[s, a], rings[s, b])
-        signs = np.sign(np.stack([self._areas(xi) for xi in x]))
+        signs = np.sign(self._areas(x))
         out = {"self_crossing": [], "crossing": [], "inside_out": [], "min_gap": [], "min_gap_between": []}
         for k in range(n):
             mine = s == k
