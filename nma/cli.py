@@ -19,7 +19,8 @@ from contextlib import contextmanager
 from typing import Callable
 
 from .config import CONF_DIR
-from .schema import ConfigError, explain, register
+from .errors import ConfigError, SolverError, TrainingError
+from .schema import explain, register
 
 BAD_INPUT, FAILED = 2, 1
 MAX_SWEEP_CHECKS = 256
@@ -106,9 +107,6 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
 @contextmanager
 def exit_codes(rank: int = 0):
     """Inside a command's task function: bad input -> 2, a stated failure -> 1, one line each."""
-    from .solver.newton import SolverError
-    from .train.trainer import TrainingError
-
     try:
         yield
     except ConfigError as err:

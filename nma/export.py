@@ -33,7 +33,8 @@ from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
 from .geometry.outline import Outline, bezier_segments, loop_spline
-from .schema import ConfigError, ExportConfig, build, register
+from .errors import ConfigError, SolverError
+from .schema import ExportConfig, build, register
 
 register()
 
@@ -199,7 +200,6 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     from .mechanics.material import material
     from .run import load_run
     from .simulator import Simulator
-    from .solver.newton import SolverError
 
     settings, params, _ = load_run(run_dir)
     sim = Simulator(discretise(scene_from_config(settings.scene), settings.fidelity), settings.solver.linear,

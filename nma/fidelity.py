@@ -13,7 +13,8 @@ import json
 from functools import lru_cache
 from pathlib import Path
 
-from .schema import ConfigError, Fidelity
+from .errors import ConfigError
+from .schema import Fidelity
 
 DATA = Path(__file__).resolve().parent / "data" / "fidelity"
 

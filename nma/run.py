@@ -42,7 +42,8 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
     from omegaconf import OmegaConf
 
-    from .schema import TASK_SCHEMAS, ConfigError
+    from .errors import ConfigError
+    from .schema import TASK_SCHEMAS
     from .train import checkpoint
 
     run = Path(run_dir)

@@ -19,9 +19,7 @@ from typing import Any, ClassVar, Dict, List, Optional, get_args, get_origin, ge
 
 from omegaconf import MISSING
 
-
-class ConfigError(ValueError):
-    """Bad input (config or data): the message names the field, the value and what is allowed."""
+from .errors import ConfigError
 
 
 # -- field declarations --------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from omegaconf import DictConfig
 from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
+from .errors import SolverError
 from .schema import SimulateConfig, build, register
 
 log = logging.getLogger("nma.simulate")
@@ -52,7 +53,6 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .io.fields import write_fields
     from .mechanics.material import material
     from .simulator import Simulator
-    from .solver.newton import SolverError
     from .viz.plot import save_reference_and_deformed
 
     spec = scene_from_config(s.scene)

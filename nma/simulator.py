@@ -18,7 +18,8 @@ import numpy as np
 
 from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_from_config
-from .schema import ConfigError, Fidelity, SolverConfig, build
+from .errors import ConfigError
+from .schema import Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend

@@ -34,6 +34,7 @@ def test_refinement_is_exact_knot_insertion():
 @pytest.mark.parametrize("count", [4, 6, 7, 9])
 def test_fidelity_rejects_non_nested_counts(count):
     """Only 3k + 2 control points nest the design knots (knot insertion is then exact)."""
-    from nma.schema import ConfigError, Fidelity
+    from nma.errors import ConfigError
+    from nma.schema import Fidelity
     with pytest.raises(ConfigError, match="fidelity.ctrl_per_patch"):
         Fidelity(count, 3)

@@ -8,7 +8,8 @@ import sys
 import pytest
 
 from nma import cli, run, simulate
-from nma.schema import ConfigError, Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
+from nma.errors import ConfigError
+from nma.schema import Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
 
 BAD_RUN = [
     ("trainer.batch_size=abc", "trainer.batch_size must be an integer, got 'abc'"),

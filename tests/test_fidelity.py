@@ -7,7 +7,8 @@ import pytest
 
 from nma import config
 from nma.fidelity import DATA, choose
-from nma.schema import ConfigError, Fidelity
+from nma.errors import ConfigError
+from nma.schema import Fidelity
 
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
 

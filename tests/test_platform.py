@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 from nma import config
 from nma.run import validate
-from nma.schema import ConfigError
+from nma.errors import ConfigError
 
 FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
         "trainer.animation_frames=3", "task.eval_grid=2", "fidelity=fast"]
@@ -264,7 +264,8 @@ def test_nonfinite_loss_skips_updates_then_stops(simulator, tmp_path):
     from nma.models.mlp import mlp
     from nma.schema import OptimConfig, TrainerConfig, TranslationTask
     from nma.tasks.translation import translation
-    from nma.train.trainer import Trainer, TrainingError
+    from nma.errors import TrainingError
+    from nma.train.trainer import Trainer
 
     sim = simulator("translation", quad_points=3)
     task = translation(TranslationTask(eval_grid=1), sim)

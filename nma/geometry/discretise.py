@@ -17,7 +17,8 @@ from scipy.spatial import cKDTree
 from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
                       refinement_operator)
 from ..fidelity import Choice, resolve
-from ..schema import ConfigError, Fidelity
+from ..errors import ConfigError
+from ..schema import Fidelity
 from .design import make_design
 from .scene import PatchSceneSpec, SceneSpec
 

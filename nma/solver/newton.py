@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..errors import SolverError
 from ..geometry.discretise import Discretisation
 from ..schema import NewtonOptions
 from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quadrature, strain_energy
@@ -320,29 +321,26 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
     return result(jax.lax.while_loop(lambda s: s.status == RUNNING, body, init))
 
 
-class SolverError(RuntimeError):
-    """Newton could not reach full load: says how far it got and why."""
-
-    def __init__(self, info: NewtonInfo, context: str = "", nu: float | None = None):
-        status = int(info.status)
-        self.info = info
-        msg = (f"{context}Newton solve failed: {STATUS_TEXT.get(status, status)}; converged up to load factor "
-               f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
-               f"load steps and {int(info.cuts)} cuts; last residual {float(info.residual):.3e} "
-               f"(tolerance {float(info.tolerance):.3e})")
-        if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
-            msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
-                    f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): a displacement-only discretisation locks there "
-                    f"and Newton needs several times the usual iterations; raise solver.max_iters (the stability "
-                    f"map's failures at nu = 0.499 converge within 500) or lower nu")
-        super().__init__(msg)
+def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> SolverError:
+    """The error of one failed solve: how far it got and why."""
+    status = int(info.status)
+    msg = (f"{context}Newton solve failed: {STATUS_TEXT.get(status, status)}; converged up to load factor "
+           f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
+           f"load steps and {int(info.cuts)} cuts; last residual {float(info.residual):.3e} "
+           f"(tolerance {float(info.tolerance):.3e})")
+    if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
+        msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
+                f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): a displacement-only discretisation locks there "
+                f"and Newton needs several times the usual iterations; raise solver.max_iters (the stability "
+                f"map's failures at nu = 0.499 converge within 500) or lower nu")
+    return SolverError(msg, info)
 
 
 def check_converged(info: NewtonInfo, context: str = "", nu: float | None = None) -> None:
     status = np.asarray(info.status)
     if status.ndim == 0:
         if int(status) != CONVERGED:
-            raise SolverError(info, context, nu)
+            raise failure(info, context, nu)
         return
     for i in np.flatnonzero(status != CONVERGED):
-        raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ", nu)
+        raise failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ", nu)

@@ -21,7 +21,8 @@ import numpy as np
 
 from ..geometry.bspline import DESIGN_CTRL, basis_matrix
 from ..registry import TASKS
-from ..schema import ConfigError, DigitalMNISTTask
+from ..errors import ConfigError
+from ..schema import DigitalMNISTTask
 from .base import Task
 
 # Segments 1 lower-left, 2 upper-left, 3 lower-right, 4 upper-right (verticals), 5 bottom, 6 middle,

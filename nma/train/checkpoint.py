@@ -15,7 +15,7 @@ from pathlib import Path
 
 from flax import serialization
 
-from ..schema import ConfigError
+from ..errors import ConfigError
 
 log = logging.getLogger(__name__)
 _NAME = re.compile(r"step_(\d+)\.msgpack$")

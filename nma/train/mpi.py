@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..schema import ConfigError
+from ..errors import ConfigError
 
 
 class World:

@@ -25,17 +25,14 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from ..geometry.validity import StateChecker, summarise
-from ..schema import ConfigError, OptimConfig, TrainerConfig
-from ..solver.newton import CONVERGED, NONFINITE_INPUT, SolverError
+from ..errors import ConfigError, TrainingError
+from ..schema import OptimConfig, TrainerConfig
+from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
 from . import checkpoint
 from .mpi import World
 
 log = logging.getLogger(__name__)
 OBSERVE_CHUNK = 8  # samples observed at once
-
-
-class TrainingError(RuntimeError):
-    """Training cannot go on for a stated reason (not a solver failure): exit status 1."""
 
 
 def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int,
@@ -146,8 +143,8 @@ class Trainer:
                                                      f"are not finite, so nothing could be solved"))
         if n_ok == 0:
             bad = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
-            raise SolverError(jax.tree_util.tree_map(lambda a: np.asarray(a)[bad], info),
-                              f"step {step}: no sample of the batch converged; ")
+            raise failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[bad], info),
+                          f"step {step}: no sample of the batch converged; ")
         mean_grads = unravel(jnp.asarray(total[:-3] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
         self.state = {"params": params, "opt_state": opt_state, "step": step + 1}
