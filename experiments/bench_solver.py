@@ -34,7 +34,7 @@ def build(scene, linear="pardiso"):
     from nma.geometry.discretise import Fidelity, discretise
     from nma.geometry.scene import scene_from_config
     from nma.simulator import Simulator
-    from nma.solver.newton import NewtonOptions
+    from nma.solver.options import NewtonOptions
 
     disc = discretise(scene_from_config(config.load("scene", scene)), Fidelity(5, 5))
     return Simulator(disc, linear, NewtonOptions(rtol=1e-10))

@@ -97,7 +97,8 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
     from nma.registry import TASKS
     from nma.schema import TASK_SCHEMAS, Fidelity, build
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED, NewtonOptions
+    from nma.solver.newton import CONVERGED
+    from nma.solver.options import NewtonOptions
 
     ctrl, quad, rtol = setting
     with PeakMemory() as memory:

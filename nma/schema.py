@@ -20,6 +20,7 @@ from typing import Any, ClassVar, Dict, List, Optional, get_args, get_origin, ge
 from omegaconf import MISSING
 
 from .errors import ConfigError
+from .solver.options import NewtonOptions
 
 
 # -- field declarations --------------------------------------------------------------------------------
@@ -164,39 +165,39 @@ class Fidelity(Schema):
                       self.ctrl_per_patch)
 
 
+_NEWTON = NewtonOptions()  # the solver's defaults; the config declares their allowed ranges
+
+
 @dataclass
-class NewtonOptions(Schema):
-    """Newton with adaptive load steps (see nma.solver.newton)."""
+class SolverConfig(Schema):
+    """Newton with adaptive load steps (nma.solver.newton) and the linear solver under it."""
     prefix: ClassVar[str] = "solver"
-    rtol: float = bounded(1e-10, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
-    atol: float = bounded(1e-13, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
-    max_iters: int = bounded(200, "[1, 100000]")
-    max_step_iters: int = bounded(100, "[1, 100000]", doc="corrector iterations before a load step fails (up to 5 "
-                                                         "more while its residual is within 1000x the tolerance)")
-    initial_increment: float = bounded(1.0, "(0, 1]")
-    min_increment: float = bounded(1e-4, "(0, 1]")
-    grow: float = bounded(2.0, "[1, 100]")
-    step_fraction: float = bounded(0.9, "(0, 1]", doc="a step may go this fraction of the way to J = 0")
-    armijo: float = bounded(1e-4, "(0, 0.5]")
-    max_backtracks: int = bounded(40, "[1, 1000]")
-    damped_step: float = bounded(0.1, "(0, 1]", doc="a corrector step shorter than this fraction of the Newton "
-                                                    "step is heavily damped")
-    max_damped_steps: int = bounded(3, "[1, 100000]", doc="heavily damped corrector steps in a row that cut the "
-                                                        "load step at once (Newton's model does not hold there)")
-    # leave saddles: a converged state whose Hessian has negative eigenvalues (PARDISO's inertia; a
-    # symmetric path past a buckling point) is perturbed along its unstable mode and Newton goes on to
-    # the stable (buckled) equilibrium.  Off by default: the paper's solver, and every reproduction
-    # measured so far, takes the first stationary point Newton reaches.
-    escape_saddles: bool = False
-
-    def newton(self) -> "NewtonOptions":
-        return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})
-
-
-@dataclass
-class SolverConfig(NewtonOptions):
+    rtol: float = bounded(_NEWTON.rtol, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
+    atol: float = bounded(_NEWTON.atol, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
+    max_iters: int = bounded(_NEWTON.max_iters, "[1, 100000]")
+    max_step_iters: int = bounded(_NEWTON.max_step_iters, "[1, 100000]",
+                                  doc="corrector iterations before a load step fails (up to 5 more while its "
+                                      "residual is within 1000x the tolerance)")
+    initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]")
+    min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]")
+    grow: float = bounded(_NEWTON.grow, "[1, 100]")
+    step_fraction: float = bounded(_NEWTON.step_fraction, "(0, 1]",
+                                   doc="a step may go this fraction of the way to J = 0")
+    armijo: float = bounded(_NEWTON.armijo, "(0, 0.5]")
+    max_backtracks: int = bounded(_NEWTON.max_backtracks, "[1, 1000]")
+    damped_step: float = bounded(_NEWTON.damped_step, "(0, 1]",
+                                 doc="a corrector step shorter than this fraction of the Newton step is heavily damped")
+    max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
+                                    doc="heavily damped corrector steps in a row that cut the load step at once "
+                                        "(Newton's model does not hold there)")
+    escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
+        "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
     linear: str = "auto"   # a linear backend registered in nma.solver.linear (auto, pardiso, superlu, dense)
     workers: int = bounded(0, "[0, 1024]", doc="threads solving a batch's samples at once; 0 = one per core")
+
+    def newton(self) -> NewtonOptions:
+        """Newton's own settings, handed to the solver."""
+        return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})
 
 
 # -- scenes ----------------------------------------------------------------------------------------------

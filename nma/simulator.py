@@ -23,7 +23,8 @@ from .schema import Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend
-from .solver.newton import Equations, NewtonInfo, NewtonOptions, check_converged
+from .solver.newton import Equations, NewtonInfo, check_converged
+from .solver.options import NewtonOptions
 
 
 @dataclass

@@ -33,7 +33,7 @@ def barrier_simulator():
     (tight enough for central differences of its solution); shared by the barrier and gradient tests."""
     from nma.geometry.discretise import Fidelity, discretise
     from nma.geometry.scene import scene_from_config
-    from nma.solver.newton import NewtonOptions
+    from nma.solver.options import NewtonOptions
 
     disc = discretise(scene_from_config(config.load("scene", "translation")), Fidelity(5, 2, inversion_barrier=0.05))
     return Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12))

@@ -11,7 +11,7 @@ from nma.geometry.sampling import sample_colours, sample_positions
 from nma.geometry.scene import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
-from nma.solver.newton import NewtonOptions
+from nma.solver.options import NewtonOptions
 
 TIGHT = NewtonOptions(rtol=1e-12)  # FD of the solution needs it converged below the FD step's effect
 _SIMS = {}

@@ -8,7 +8,8 @@ from nma.geometry.scene import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
 from nma.errors import SolverError
-from nma.solver.newton import CONVERGED, NewtonOptions
+from nma.solver.newton import CONVERGED
+from nma.solver.options import NewtonOptions
 
 SMALL = {"name": "small", "cells": ["PP", "PP"], "pinned": [[0, 0], [10, 0], [10, 10], [0, 10]],
          "groups": [{"name": "left", "segment": [[0, 2], [0, 8]], "actuation": 0, "direction": [1, 0]},

@@ -31,8 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..mechanics.energy import force_and_tangents, quadrature
-from .newton import (CONVERGED, RUNNING, Equations, NewtonOptions, advance, hold, leave_saddle, linearise,
-                     newton_solve, result, setup)
+from .newton import CONVERGED, RUNNING, Equations, advance, hold, leave_saddle, linearise, newton_solve, result, setup
+from .options import NewtonOptions
 
 KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
 MAX_SADDLE_CHECKS = 16  # converged load steps checked for stability per solve (escape_saddles)

@@ -35,9 +35,9 @@ import numpy as np
 
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
-from ..schema import NewtonOptions
 from ..mechanics.energy import Quadrature, energy_force_tangents, max_step, quadrature, strain_energy
 from .assembly import element_dofs
+from .options import NewtonOptions
 
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
 FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearly converged...

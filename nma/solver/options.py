@@ -1,0 +1,31 @@
+"""Newton's own settings (nma.solver.newton), a plain value the solver takes; no config machinery.
+
+The config's `solver` group (nma.schema.SolverConfig) declares each of these with its allowed range
+and hands them down through `SolverConfig.newton()`; library code builds them directly:
+
+    Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12))
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    rtol: float = 1e-10             # residual tolerance relative to the full-load force scale
+    atol: float = 1e-13             # noise floor relative to (max element stiffness x size)
+    max_iters: int = 200
+    max_step_iters: int = 100       # corrector iterations before a load step fails (a few more near convergence)
+    initial_increment: float = 1.0  # first load increment, a fraction of the full load
+    min_increment: float = 1e-4     # an increment cut below this fails the solve
+    grow: float = 2.0               # increment growth after a quick load step
+    step_fraction: float = 0.9      # a step may go this fraction of the way to J = 0
+    armijo: float = 1e-4            # sufficient decrease of the line search
+    max_backtracks: int = 40
+    damped_step: float = 0.1        # a corrector step shorter than this fraction of the Newton step is heavily damped
+    max_damped_steps: int = 3       # heavily damped steps in a row that cut the load step at once
+    # leave saddles: a converged state whose Hessian has negative eigenvalues (PARDISO's inertia; a
+    # symmetric path past a buckling point) is perturbed along its unstable mode and Newton goes on to
+    # the stable (buckled) equilibrium.  Off by default: the paper's solver, and every reproduction
+    # measured so far, takes the first stationary point Newton reaches.
+    escape_saddles: bool = False
