@@ -30,14 +30,15 @@ register()
 
 
 def validate(cfg: DictConfig) -> EvaluateConfig:
+    from .fidelity import resolve
+    from .registry import LINEAR_SOLVERS
     from .run import load_run
     from .solver import linear  # noqa: F401  (register backends)
-    from .registry import LINEAR_SOLVERS
 
     settings = build(EvaluateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
-    return settings
+    run, _, _ = load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene.name))
 
 
 def evaluate_at(settings, run: Path, fidelity, solver) -> dict:

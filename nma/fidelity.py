@@ -4,12 +4,15 @@ experiments/fidelity_study.py measures, for each scene, every setting's forward 
 gradient error against a converged reference (the worst relative norm error over the learned geometry
 groups and the actuations, over random draws), and ships the results as nma/data/fidelity/<scene>.json.
 A run with `fidelity.tolerance` set takes, from its scene's file, the fastest setting whose gradient
-error is at most the tolerance; nothing is calibrated at run time.
+error is at most the tolerance; nothing is calibrated at run time.  Each command resolves its settings
+once, where it checks them (`resolve`), and hands the concrete setting down: below the commands no
+module knows of fidelity=auto.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from functools import lru_cache
 from pathlib import Path
 
@@ -44,6 +47,7 @@ def fastest_within(rows: list[dict], tolerance: float) -> dict | None:
     return min(ok, key=lambda r: r["forward_grad_seconds"]["median"]) if ok else None
 
 
+@lru_cache(maxsize=None)
 def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
     """The fastest measured setting of `scene` whose gradient error is at most `tolerance`."""
     path = data / f"{scene}.json"
@@ -70,12 +74,19 @@ def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
     return Choice(fidelity, tolerance, pick, reason)
 
 
-def resolve(fidelity: Fidelity, scene: str) -> tuple[Fidelity, Choice | None]:
-    """`fidelity` itself, or with a tolerance set, the setting its scene's front picks."""
+def resolve(fidelity: Fidelity, scene: str) -> Fidelity:
+    """A concrete setting: `fidelity` itself, or with a tolerance set (fidelity=auto), the setting its
+    scene's front picks, the tolerance kept as the record of what was asked (resolving it again picks
+    the same).  ConfigError where the scene has no front or no setting meets the tolerance."""
     if fidelity.tolerance is None:
-        return fidelity, None
+        return fidelity
     choice = choose(scene, fidelity.tolerance)
+    logging.getLogger("nma.fidelity").info(choice.reason)
+    pick = choice.fidelity
     # the front sets the discretisation; what it does not measure is the user's
-    choice = dataclasses.replace(choice, fidelity=dataclasses.replace(
-        choice.fidelity, inversion_barrier=fidelity.inversion_barrier))
-    return choice.fidelity, choice
+    return dataclasses.replace(fidelity, ctrl_per_patch=pick.ctrl_per_patch, quad_points=pick.quad_points)
+
+
+def choice_of(fidelity: Fidelity, scene: str) -> Choice | None:
+    """For a setting fidelity=auto resolved: the measured row it came from and why (metrics.json, the log)."""
+    return None if fidelity.tolerance is None else choose(scene, fidelity.tolerance)

@@ -24,9 +24,11 @@ register()
 
 
 def validate(cfg: DictConfig) -> TrainConfig:
-    """The composed config as checked settings; ConfigError names the field and its allowed range.
-    Nothing is built: only the registries are consulted for the component names."""
+    """The composed config as checked settings, resolved (fidelity=auto: the measured setting it picks);
+    ConfigError names the field and its allowed range. Nothing is built: only the registries are
+    consulted for the component names."""
     from . import models, tasks  # noqa: F401  (register components)
+    from .fidelity import resolve
     from .registry import LINEAR_SOLVERS, MODELS, TASKS
     from .solver import linear  # noqa: F401
 
@@ -34,7 +36,7 @@ def validate(cfg: DictConfig) -> TrainConfig:
     TASKS.get(settings.task.name)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return settings
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene.name))
 
 
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
@@ -76,13 +78,15 @@ def fingerprint(s: TrainConfig) -> dict:
 
 def fidelity_record(disc) -> dict:
     """The discretisation a run used, and with fidelity=auto which measured setting that was and why."""
-    choice = disc.fidelity_choice
+    from .fidelity import choice_of
+
+    choice = choice_of(disc.fidelity, disc.spec.name)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
             "dofs": disc.n_dofs, "auto": None if choice is None else choice.record()}
 
 
 def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None):
-    """The simulator, task, network, logger and trainer of checked settings (JAX set up first)."""
+    """The simulator, task, network, logger and trainer of checked, resolved settings (JAX set up first)."""
     from .runtime import configure_jax
 
     configure_jax()
@@ -106,10 +110,11 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
     return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                   logger, world, fingerprint(dataclasses.replace(s, fidelity=sim.disc.fidelity)))  # as resolved
+                   logger, world, fingerprint(s))
 
 
 def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
+    """Train, write the run's figures, fields and metrics.json; the final evaluation's record."""
     from .train import artefacts
     from .train.mpi import World
 

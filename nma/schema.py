@@ -461,9 +461,6 @@ class TrainConfig:
         if self.task.name != self.scene.name:
             raise ConfigError(f"scene={self.scene.name} does not fit task={self.task.name}; "
                               f"each task runs on its scene of the same name")
-        from .fidelity import resolve
-
-        resolve(self.fidelity, self.scene.name)  # fidelity=auto: a front for the scene, a tolerance it meets
 
 
 @dataclass

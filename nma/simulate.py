@@ -12,6 +12,7 @@ load (the JSON line says how far it got).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import sys
@@ -32,12 +33,13 @@ register()
 
 
 def validate(cfg: DictConfig) -> SimulateConfig:
+    from .fidelity import resolve
     from .registry import LINEAR_SOLVERS
     from .solver import linear  # noqa: F401  (register backends)
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return settings
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene.name))
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:

@@ -62,18 +62,23 @@ def test_every_scene_ships_its_measured_front(scene):
 
 
 def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
-    """The composed config passes validation, the discretisation takes the front's choice and says why in
-    the log, and the run's metrics record both; a tolerance no setting meets fails before any work."""
+    """Validation resolves the front's choice once, the settings (and so the checkpoint's fingerprint,
+    which a resume compares) carry the chosen setting, the discretisation takes it as given, and the
+    run's metrics record it and why; a tolerance no setting meets fails before any work."""
+    from nma.fidelity import choice_of
     from nma.geometry.discretise import discretise
     from nma.geometry.scene import scene_from_config
-    from nma.run import fidelity_record, validate
+    from nma.run import fidelity_record, fingerprint, validate
     from test_platform import compose_cfg
 
-    settings = validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none"))
-    expected = choose("translation", 0.6)
     with caplog.at_level(logging.INFO, logger="nma.fidelity"):
-        disc = discretise(scene_from_config(settings.scene), settings.fidelity)
-    assert disc.fidelity == expected.fidelity and expected.reason in caplog.text
+        settings = validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none"))
+    expected = choose("translation", 0.6)
+    assert settings.fidelity == expected.fidelity and expected.reason in caplog.text
+    assert fingerprint(settings)["fidelity"]["ctrl_per_patch"] == expected.fidelity.ctrl_per_patch
+    assert choice_of(settings.fidelity, "translation").reason == expected.reason
+    disc = discretise(scene_from_config(settings.scene), settings.fidelity)
+    assert disc.fidelity == expected.fidelity
     record = fidelity_record(disc)
     assert record["auto"]["tolerance"] == 0.6 and record["dofs"] == disc.n_dofs
     assert (record["ctrl_per_patch"], record["quad_points"]) == (expected.fidelity.ctrl_per_patch,

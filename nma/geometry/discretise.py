@@ -5,7 +5,6 @@ The result is static numpy data (topology, quadrature tables) plus one different
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
 
 import jax.numpy as jnp
@@ -16,7 +15,6 @@ from scipy.spatial import cKDTree
 
 from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
                       refinement_operator)
-from ..fidelity import Choice, resolve
 from ..errors import ConfigError
 from ..schema import Fidelity
 from .design import make_design
@@ -43,7 +41,6 @@ class Discretisation:
     external_force: np.ndarray    # (2 n_points,) dead load at full load factor
     tracked: dict = field(default_factory=dict)  # name -> (point indices (m*m,), basis weights (m*m,))
     group_points: dict = field(default_factory=dict)  # group name -> point indices
-    fidelity_choice: Choice | None = None  # fidelity=auto: which setting its scene's front gave, and why
 
     @property
     def n_patches(self) -> int:
@@ -150,9 +147,8 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
 
 
 def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()) -> Discretisation:
-    fidelity, choice = resolve(fidelity, spec.name)  # fidelity=auto: a measured setting
-    if choice is not None:
-        logging.getLogger("nma.fidelity").info(choice.reason)
+    """The analysis model of a scene at a concrete `fidelity` (its control points and Gauss points per
+    patch; fidelity=auto is resolved by the command, nma.fidelity.resolve, before it gets here)."""
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
@@ -239,7 +235,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
         representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
         quad_weights=weights, check_grads=check_grads, check_weights=check_weights, dirichlet_dofs=dirichlet,
         actuation_matrix=A, free_dofs=free,
-        external_force=f_ext, tracked=tracked, group_points=group_points, fidelity_choice=choice)
+        external_force=f_ext, tracked=tracked, group_points=group_points)
 
 
 __all__ = ["Fidelity", "Discretisation", "discretise", "DESIGN_CTRL"]
