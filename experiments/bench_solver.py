@@ -49,10 +49,10 @@ def objective(sim):
 
     def loss(params, d, mat):
         X = sim.reference_points(params)
-        u, info = sim.equilibrium(X, d, mat)
-        tracked = sim.tracked(X, u)
-        out = sum(jnp.sum(jnp.abs(p - 1.0)) for p in tracked.values()) if tracked else jnp.sum(w * (X + u))
-        return out, (u, info)
+        eq = sim.equilibrium(X, d, mat)
+        tracked = sim.tracked(X, eq.u)
+        out = sum(jnp.sum(jnp.abs(p - 1.0)) for p in tracked.values()) if tracked else jnp.sum(w * (X + eq.u))
+        return out, eq
 
     return loss
 
@@ -62,7 +62,6 @@ def bench_scene(scene, repeats, linear="pardiso"):
     import jax.numpy as jnp
 
     from nma.mechanics.material import material
-    from nma.solver.newton import check_converged
 
     t0 = time.perf_counter()
     sim = build(scene, linear=linear)
@@ -80,12 +79,14 @@ def bench_scene(scene, repeats, linear="pardiso"):
     t_fwd, t_grad, iters, steps = [], [], [], []
     for d in draws:
         t0 = time.perf_counter()
-        _, (_, info) = jax.block_until_ready(fwd(params, d))
+        jax.block_until_ready(fwd(params, d))
         t_fwd.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        (_, (_, info)), _ = jax.block_until_ready(fwd_grad(params, d, mat))
+        (_, eq), _ = jax.block_until_ready(fwd_grad(params, d, mat))
         t_grad.append(time.perf_counter() - t0)
-        check_converged(info, f"{scene} d={np.asarray(d).round(3).tolist()}: ")
+        info = eq.info
+        if not eq.converged:
+            raise eq.error(f"{scene} d={np.asarray(d).round(3).tolist()}: ")
         iters.append(int(info.iterations))
         steps.append(int(info.load_steps))
     out = {"scene": scene, "linear": linear, "dofs": sim.disc.n_dofs, "build_seconds": build_s,
@@ -95,9 +96,9 @@ def bench_scene(scene, repeats, linear="pardiso"):
         big = []
         for d in ([4.0, -4.0], [-4.0, 4.0], [4.0, 4.0], [-4.0, -4.0]):
             t0 = time.perf_counter()
-            (_, (_, info)), _ = jax.block_until_ready(fwd_grad(params, jnp.array(d), mat))
-            big.append({"actuation": d, "seconds": time.perf_counter() - t0,
-                        "converged": bool(int(info.status) == 1), "newton_iterations": int(info.iterations),
+            (_, eq), _ = jax.block_until_ready(fwd_grad(params, jnp.array(d), mat))
+            info = eq.info
+            big.append({"actuation": d, "seconds": time.perf_counter() - t0, "converged": bool(eq.converged), "newton_iterations": int(info.iterations),
                         "load_steps": int(info.load_steps)})
         out["largest_actuation"] = big
     out["linear_solver_counts"] = dict(sim.backend.stats)  # adjoint_refactorisations 0: factor reused

@@ -50,7 +50,7 @@ def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
                             trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
     trainer = make_trainer(s, run / "evaluate")
     t0 = time.perf_counter()
-    ev = trainer.evaluate()
+    ev = trainer.evaluate().record
     task = trainer.task
     return {"fidelity": fidelity_record(trainer.sim.disc),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],

@@ -33,7 +33,7 @@ from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
 from .geometry.outline import Outline, bezier_segments, loop_spline
-from .errors import ConfigError, SolverError
+from .errors import ConfigError
 from .schema import ExportConfig, build, register
 
 register()
@@ -216,17 +216,16 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
         d = fraction * settings.task.d_max * np.asarray(signs)
         for line in rest:
             ax.plot(*np.vstack([line, line[:1]]).T, color="#9a9a9a", lw=0.8)
-        try:
-            sol = sim.solve(geom, d, mat)
-        except SolverError as err:
-            cases[name] = {"actuation": d.tolist(), "converged": False, "error": str(err)}
+        eq = sim.solve(geom, d, mat, throw=False)
+        if not eq.converged:
+            cases[name] = {"actuation": d.tolist(), "converged": False, "error": str(sim.failure(eq, d, mat))}
             ax.set_title(f"{name}: solve failed", fontsize=9)
             continue
-        state = checker.check(sol.u)
-        moved = np.asarray(sim.tracked(sol.X, sol.u)["pointer"]) - pointer0
+        state = checker.check(eq.u)
+        moved = np.asarray(sim.tracked(X, eq.u)["pointer"]) - pointer0
         cases[name] = {"actuation": d.tolist(), "converged": True, "pointer_displacement_mm": (scale * moved).tolist(),
                        "valid": state.valid, "problems": state.problems()}
-        for line in Outline.deformed(checker.loops, X + np.asarray(sol.u)).polylines(8):
+        for line in Outline.deformed(checker.loops, X + np.asarray(eq.u)).polylines(8):
             ax.plot(*np.vstack([scale * line, scale * line[:1]]).T, color="#c0392b" if not state.valid else "#1f3fbf",
                     lw=1.0)
         ax.annotate("", scale * (pointer0 + moved), scale * pointer0,

@@ -127,7 +127,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     on_eval = None
     if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
         on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
-            run_dir / "fields" / f"step_{ev['step']:07d}", sim, ev, s.trainer.fields_samples)
+            run_dir / "fields" / f"step_{ev.record['step']:07d}", sim, ev, s.trainer.fields_samples)
     evaluation = trainer.fit(on_eval)
     logger.finish()
     if not world.is_root:
@@ -160,18 +160,18 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",
-             task.metric_name, evaluation[task.metric_name], task.metric_unit, trainer.state["step"],
+             task.metric_name, evaluation.record[task.metric_name], task.metric_unit, trainer.state["step"],
              "" if floor is None or s.trainer.freeze_geometry else
              f"the initial design with its geometry frozen can do no better than {floor[0]:.4g} ({floor[1]}); ",
              at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
-    if evaluation["invalid_states"]:
+    if evaluation.record["invalid_states"]:
         from .geometry.validity import describe
 
         log.warning("%s. They are marked in figures/deformed.png and listed in metrics.json (invalid_samples).",
-                    describe(evaluation, evaluation["invalid_samples"]))
-    return evaluation
+                    describe(evaluation.record, evaluation.record["invalid_samples"]))
+    return evaluation.record
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")

@@ -25,7 +25,6 @@ from omegaconf import DictConfig
 from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
-from .errors import SolverError
 from .schema import SimulateConfig, build, register
 
 log = logging.getLogger("nma.simulate")
@@ -65,28 +64,32 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "actuation": np.asarray(d).tolist(),
               "material": {"E": s.material.E, "nu": s.material.nu}}
-    try:
-        sol = sim.solve(sim.init_params(), d, mat)
-    except SolverError as err:
-        info = err.info
-        return {**result, "converged": False, "error": str(err), "load_reached": float(info.load),
+    params = sim.init_params()
+    t0 = time.perf_counter()
+    eq = sim.solve(params, d, mat, throw=False)
+    seconds = time.perf_counter() - t0
+    info = eq.info
+    if not eq.converged:
+        return {**result, "converged": False, "error": str(sim.failure(eq, d, mat)), "load_reached": float(info.load),
                 "load_steps": int(info.load_steps), "newton_iterations": int(info.iterations),
                 "residual": float(info.residual)}
-    tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(sol.X, sol.u).items()}
-    checker = StateChecker(sim.disc, sol.X)
-    state = checker.check(sol.u)
+    X = np.asarray(sim.reference_points(params))
+    energy = sim.energy(X, eq.u, mat)
+    tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(X, eq.u).items()}
+    checker = StateChecker(sim.disc, X)
+    state = checker.check(eq.u)
     if not state.valid:
         log.warning("the equilibrium is not a physical object: %s", "; ".join(state.problems()))
-    h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, sol.X, sol.u, s.output.samples,
-                            attrs={"actuation": np.asarray(d), "energy": sol.energy})
+    h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, X, eq.u, s.output.samples,
+                            attrs={"actuation": np.asarray(d), "energy": energy})
     result.update({
-        "tracked": tracked, "energy": sol.energy, "load_steps": int(sol.info.load_steps),
-        "newton_iterations": int(sol.info.iterations), "converged": True, "valid": state.valid,
+        "tracked": tracked, "energy": energy, "load_steps": int(info.load_steps),
+        "newton_iterations": int(info.iterations), "converged": True, "valid": state.valid,
         "validity": {**state.record(), "resolution": checker.resolution},
-        "residual": float(sol.info.residual), "tolerance": float(sol.info.tolerance),
-        "seconds": sol.seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
+        "residual": float(info.residual), "tolerance": float(info.tolerance),
+        "seconds": seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
     if s.output.figure:
-        png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, sol.X, sol.u,
+        png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, X, eq.u,
                                           f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")
         result["figure"] = str(png)
     return result

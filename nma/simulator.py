@@ -2,13 +2,12 @@
 
     sim = Simulator.from_config(scene_cfg, fidelity=..., solver=...)
     X = sim.reference_points(params)          # differentiable design map
-    u, info = sim.equilibrium(X, d, mat)      # differentiable equilibrium (jit/grad friendly)
-    sol = sim.solve(params, d, mat)           # eager: raises SolverError unless converged
+    u, info = sim.equilibrium(X, d, mat)      # an Equilibrium, differentiable (jit/grad friendly)
+    eq = sim.solve(params, d, mat)            # eager, on the host: raises SolverError unless converged
+    eq = sim.solve(params, d, mat, throw=False)   # ...or returns it failed: eq.converged, sim.failure(eq, d, mat)
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
 from functools import partial
 from typing import Any, Mapping
 
@@ -16,28 +15,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_from_config
-from .errors import ConfigError
 from .schema import Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend
-from .solver.newton import Equations, NewtonInfo, check_converged
+from .solver.newton import Equations, Equilibrium
 from .solver.options import NewtonOptions
-
-
-@dataclass
-class Solution:
-    X: np.ndarray            # (n_points, 2) reference control points
-    u: np.ndarray            # (n_points, 2) displacement of every control point
-    info: NewtonInfo
-    energy: float            # integral of W over the reference domain
-    seconds: float
-
-    @property
-    def x(self) -> np.ndarray:
-        return self.X + self.u
 
 
 class Simulator:
@@ -54,13 +40,16 @@ class Simulator:
         self.workers = 1 if self.backend.traceable else workers or available_cores()
         self.equilibrium = make_equilibrium(self.equations, self.backend, options, self.workers)
         self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
-        self._solve = jax.jit(self._solve_impl)
+        self._solve = jax.jit(lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat))
+        self._energy = jax.jit(lambda X, u, mat: strain_energy(disc, quadrature(disc, X), u, mat))
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None) -> "Simulator":
-        solver = build(SolverConfig, solver)
-        return cls(discretise(scene_from_config(scene), build(Fidelity, fidelity)), solver.linear, solver.newton(),
+        from .fidelity import resolve
+
+        spec, solver = scene_from_config(scene), build(SolverConfig, solver)
+        return cls(discretise(spec, resolve(build(Fidelity, fidelity), spec.name)), solver.linear, solver.newton(),
                    solver.workers)
 
     @property
@@ -88,22 +77,22 @@ class Simulator:
         batch in lockstep (parallel on a GPU)."""
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
-    def _solve_impl(self, params, d, mat):
-        X = self.reference_points(params)
-        u, info = self.equilibrium(X, d, mat)
-        energy = strain_energy(self.disc, quadrature(self.disc, X), u, mat)
-        return X, u, info, energy
-
-    def solve(self, params, d, mat) -> Solution:
-        """Eager forward solve; raises SolverError (with how far it got) unless converged."""
+    def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
+        """Eager forward solve, its result on the host. Unless it converged: raises SolverError (with how
+        far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
         d = self.check_actuation(d)
-        t0 = time.perf_counter()
-        X, u, info, energy = jax.block_until_ready(self._solve(params, d, mat))
-        seconds = time.perf_counter() - t0
-        check_converged(info, f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ",
-                        float(np.asarray(mat)[1]))
-        return Solution(np.asarray(X), np.asarray(u), jax.tree_util.tree_map(np.asarray, info),
-                        float(energy), seconds)
+        eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
+        if throw and not eq.converged:
+            raise self.failure(eq, d, mat)
+        return eq
+
+    def failure(self, eq: Equilibrium, d, mat) -> SolverError | None:
+        """None for a converged solve, else its error: which solve, how far it got and why."""
+        return eq.error(f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ", float(np.asarray(mat)[1]))
+
+    def energy(self, X, u, mat) -> float:
+        """The strain energy of the state u: the integral of W over the reference domain."""
+        return float(self._energy(X, u, mat))
 
     def negative_eigenvalues(self, X, d, mat, u) -> int | None:
         """Unstable modes of an equilibrium u: the number of negative eigenvalues of the Hessian K_ff

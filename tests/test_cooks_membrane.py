@@ -20,7 +20,7 @@ MAT = from_lame(mu=80.194, kappa=400889.8)
 def tip_displacement(ctrl: int) -> float:
     sim = Simulator(discretise(cooks_membrane(), Fidelity(ctrl, 3)), "pardiso")
     sol = sim.solve({}, jnp.zeros(0), MAT)
-    return float(sim.tracked(sol.X, sol.u)["tip"][1] - 60.0)
+    return float(sim.tracked(sim.reference_points({}), sol.u)["tip"][1] - 60.0)
 
 
 def richardson(spans, tips):

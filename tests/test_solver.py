@@ -25,8 +25,10 @@ def test_extremes_converge(simulator, nu, sign):
     test_failure_reports_how_far_it_got)."""
     sim = simulator("translation")
     d = sign * jnp.array([4.0, -4.0])
-    sol = sim.solve(sim.init_params(), d, material(0.07, nu))
-    assert np.all(np.isfinite(sol.u)) and np.isfinite(sol.energy)
+    mat = material(0.07, nu)
+    sol = sim.solve(sim.init_params(), d, mat)
+    assert sol.converged and sol.message == "converged"
+    assert np.all(np.isfinite(sol.u)) and np.isfinite(sim.energy(sim.reference_points(sim.init_params()), sol.u, mat))
     assert float(sol.info.residual) <= float(sol.info.tolerance)
     # the Dirichlet groups moved exactly as declared: left by (-d0, 0)
     left = sim.disc.group_points["left"]
@@ -36,11 +38,16 @@ def test_extremes_converge(simulator, nu, sign):
 def test_failure_reports_how_far_it_got():
     disc = discretise(scene_from_config(SMALL))
     sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=8, initial_increment=0.25, grow=1.0))
+    d, mat = jnp.array([2.0, 2.0]), material(0.07, 0.3)
     with pytest.raises(SolverError, match=r"iteration limit") as err:
-        sim.solve(sim.init_params(), jnp.array([2.0, 2.0]), material(0.07, 0.3))
+        sim.solve(sim.init_params(), d, mat)
     load = float(err.value.info.load)
     assert 0.25 <= load < 1.0 and int(err.value.info.load_steps) >= 1
     assert f"load factor {load:.4g} of 1 after 8 iterations" in str(err.value)
+    # the same solve returned instead of raised: its status and error travel with it
+    eq = sim.solve(sim.init_params(), d, mat, throw=False)
+    assert not eq.converged and eq.message == "the iteration limit solver.max_iters was reached"
+    assert str(sim.failure(eq, d, mat)) == str(err.value) and float(eq.info.load) == load
 
 
 def test_status_is_returned_under_jit_without_nan():
@@ -136,7 +143,8 @@ def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(
     sols = {name: sim.solve(sim.init_params(), d, mat) for name, sim in (("fail fast", fast), ("patient", patient))}
     assert sols["fail fast"].info.cuts >= 1  # the case does cut load steps
     assert sols["fail fast"].info.iterations < sols["patient"].info.iterations
-    np.testing.assert_allclose(sols["fail fast"].x, sols["patient"].x, atol=1e-8)
+    X = np.asarray(fast.reference_points(fast.init_params()))
+    np.testing.assert_allclose(X + sols["fail fast"].u, X + sols["patient"].u, atol=1e-8)
 
 
 def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
@@ -174,9 +182,10 @@ def test_escape_saddles_reaches_a_stable_equilibrium_below_the_saddle(simulator)
     params = {**plain.init_params(), "radii": jnp.full_like(plain.init_params()["radii"], 0.5 * (lo + hi))}
     d, mat = jnp.array([-4.0, 4.0]), material(0.07, 0.3)
     sols = {name: sim.solve(params, d, mat) for name, sim in (("plain", plain), ("leaving", leaving))}
-    unstable = {name: plain.negative_eigenvalues(jnp.asarray(sol.X), d, mat, jnp.asarray(sol.u))
-                for name, sol in sols.items()}
+    X = plain.reference_points(params)
+    unstable = {name: plain.negative_eigenvalues(X, d, mat, jnp.asarray(sol.u)) for name, sol in sols.items()}
+    energy = {name: plain.energy(X, sol.u, mat) for name, sol in sols.items()}
     assert unstable["plain"] >= 1 and unstable["leaving"] == 0
-    assert sols["leaving"].energy < sols["plain"].energy - 1e-3 * abs(sols["plain"].energy)
+    assert energy["leaving"] < energy["plain"] - 1e-3 * abs(energy["plain"])
     assert float(sols["leaving"].info.residual) <= float(sols["leaving"].info.tolerance)
     assert leaving.backend.stats["saddles_left"] >= 1

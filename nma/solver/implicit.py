@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..mechanics.energy import force_and_tangents, quadrature
-from .newton import CONVERGED, RUNNING, Equations, advance, hold, leave_saddle, linearise, newton_solve, result, setup
+from .newton import (CONVERGED, RUNNING, Equations, Equilibrium, advance, hold, leave_saddle, linearise,
+                     newton_solve, result, setup)
 from .options import NewtonOptions
 
 KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
@@ -237,7 +238,7 @@ def _samples(a, lead: tuple) -> np.ndarray:
 
 
 def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
-    """Return equilibrium(X, d, mat) -> (u (n_points, 2), NewtonInfo), differentiable in X, d, mat."""
+    """Return equilibrium(X, d, mat) -> Equilibrium (u (n_points, 2), NewtonInfo), differentiable in X, d, mat."""
     if backend.traceable:
         solve_free = _traced_solve(eqs, backend, opts)
     else:
@@ -245,7 +246,7 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
-        return eqs.full(u_free, 1.0, eqs.A @ d), info
+        return Equilibrium(eqs.full(u_free, 1.0, eqs.A @ d), info)
 
     return equilibrium
 

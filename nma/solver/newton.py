@@ -60,6 +60,37 @@ class NewtonInfo(NamedTuple):
     residual_history: jnp.ndarray  # (max_iters,), nan past the last iteration
 
 
+class Equilibrium(NamedTuple):
+    """What a solve returns: the displacement of every control point and how Newton got there (its
+    status, statistics and residual history).  A pytree, so traced, batched (vmap: every field gains
+    the batch axis) and differentiated solves return it too; `u, info = equilibrium` unpacks it.  The
+    host-side properties read a solved one; a failed solve's error says how far it got and why."""
+    u: jnp.ndarray     # (n_points, 2)
+    info: NewtonInfo
+
+    @property
+    def converged(self) -> np.ndarray:
+        """Whether the solve reached full load (per sample of a batch)."""
+        return np.asarray(self.info.status) == CONVERGED
+
+    @property
+    def message(self) -> str:
+        """The status in words (one solve)."""
+        return STATUS_TEXT.get(int(self.info.status), f"status {int(self.info.status)}")
+
+    def error(self, context: str = "", nu: float | None = None) -> SolverError | None:
+        """None where converged, else the error of the failed solve (of the first failed sample of a
+        batch), `context` saying which solve it was."""
+        status = np.asarray(self.info.status)
+        if status.ndim == 0:
+            return None if int(status) == CONVERGED else failure(self.info, context, nu)
+        failed = np.flatnonzero(status != CONVERGED)
+        if not failed.size:
+            return None
+        i = int(failed[0])
+        return failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], self.info), f"{context}sample {i}: ", nu)
+
+
 class _State(NamedTuple):
     u: jnp.ndarray
     lam: jnp.ndarray
@@ -335,12 +366,3 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
                 f"map's failures at nu = 0.499 converge within 500) or lower nu")
     return SolverError(msg, info)
 
-
-def check_converged(info: NewtonInfo, context: str = "", nu: float | None = None) -> None:
-    status = np.asarray(info.status)
-    if status.ndim == 0:
-        if int(status) != CONVERGED:
-            raise failure(info, context, nu)
-        return
-    for i in np.flatnonzero(status != CONVERGED):
-        raise failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], info), f"{context}sample {i}: ", nu)

@@ -14,25 +14,25 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from ..io.fields import write_fields  # noqa: E402
+from .trainer import Evaluation  # noqa: E402
 from ..viz.plot import ACTUATED, MATERIAL, TRACKED, draw_actuated, draw_shape  # noqa: E402
 
 
-def write_metrics(run_dir: Path, task, evaluation: dict, history: list, extra: dict) -> Path:
+def write_metrics(run_dir: Path, task, evaluation: Evaluation, history: list, extra: dict) -> Path:
     path = run_dir / "metrics.json"
     body = {"task": task.name, "metric": task.metric_name, "unit": task.metric_unit,
-            "value": evaluation[task.metric_name], "step": evaluation["step"],
-            "failed_solves": evaluation["failed_solves"], "per_sample": evaluation["per_sample"],
-            "history": history, **extra,
-            **{k: v for k, v in evaluation.items() if not k.startswith("_")}}
+            "value": evaluation.record[task.metric_name], "step": evaluation.record["step"],
+            "failed_solves": evaluation.record["failed_solves"], "per_sample": evaluation.record["per_sample"],
+            "history": history, **extra, **evaluation.record}
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(body, indent=1))
     tmp.replace(path)
     return path
 
 
-def write_eval_fields(directory: Path, sim, evaluation: dict, samples: int) -> list[Path]:
+def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int) -> list[Path]:
     """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory`."""
-    X, d, u, out, ts, ok = evaluation["_solution"]
+    X, d, u, out, ts, ok = evaluation.X, evaluation.d, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
     paths = []
     for i in range(len(ts)):
         if not ok[i]:
@@ -89,17 +89,17 @@ def _layout(task, ts, limit: int):
     return pick, rows, cols, [divmod(j, cols) for j in range(len(pick))]
 
 
-def figure_deformed(path: Path, sim, task, evaluation: dict, limit: int = 36):
+def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 36):
     """Every evaluation sample (at most `limit`, evenly chosen) deformed, all on one scale, with its
     target, what it reached and its error."""
-    X, d, u, out, ts, ok = evaluation["_solution"]
+    X, u, out, ts, ok = evaluation.X, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
     pick, rows, cols, place = _layout(task, ts, limit)
     fig, axes = plt.subplots(rows, cols, figsize=(2.1 * cols, 2.2 * rows + 0.9), sharex=True, sharey=True,
                              squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
-    per = evaluation["per_sample"]
-    validity = evaluation.get("_validity") or [None] * len(ts)
+    per = evaluation.record["per_sample"]
+    validity = evaluation.validity
     for i, (r, c) in zip(pick, place):
         ax = axes[r, c]
         status = f"error {per[i]:.3g}" if ok[i] else "solve failed"
@@ -112,10 +112,10 @@ def figure_deformed(path: Path, sim, task, evaluation: dict, limit: int = 36):
         _draw_target(ax, task, out[i], ts[i])
     handles, labels = axes[place[0]].get_legend_handles_labels()
     shown = "every evaluation sample" if len(pick) == len(ts) else f"{len(pick)} of the {len(ts)} evaluation samples"
-    n_invalid = evaluation.get("invalid_states", 0)
+    n_invalid = evaluation.record["invalid_states"]
     fig.suptitle(f"{task.name}: {shown}, deformed, on one scale\nmean {task.metric_label} = "
-                 f"{evaluation[task.metric_name]:.3g} {task.metric_unit}"
-                 + (f"; {n_invalid} of {evaluation['checked_states']} states not physical (red: material "
+                 f"{evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
+                 + (f"; {n_invalid} of {evaluation.record['checked_states']} states not physical (red: material "
                     f"inverted or a wall through a wall)" if n_invalid else ""), fontsize=9)
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
@@ -123,11 +123,11 @@ def figure_deformed(path: Path, sim, task, evaluation: dict, limit: int = 36):
     plt.close(fig)
 
 
-def figure_errors(path: Path, task, evaluation: dict):
+def figure_errors(path: Path, task, evaluation: Evaluation):
     """The metric of every evaluation sample over the task's descriptor (a map over a 2D target box,
     a curve over an angle range) or, where descriptors have no axes, its distribution."""
-    X, d, u, out, ts, ok = evaluation["_solution"]
-    per, ok = np.asarray(evaluation["per_sample"], float), np.asarray(ok)
+    ts, ok = evaluation.ts, evaluation.ok
+    per, ok = np.asarray(evaluation.record["per_sample"], float), np.asarray(ok)
     label = f"{task.metric_label} [{task.metric_unit}]"
     coords = task.coordinates(np.asarray(ts))
     fig, ax = plt.subplots(figsize=(5.6, 4.4))
@@ -158,13 +158,13 @@ def figure_errors(path: Path, task, evaluation: dict):
                 mew=2, label="solve failed")
         ax.legend(fontsize=8)
     ax.set_title(f"{task.name}: {task.metric_label} per evaluation sample\n"
-                 f"(mean {evaluation[task.metric_name]:.3g} {task.metric_unit})", fontsize=9)
+                 f"(mean {evaluation.record[task.metric_name]:.3g} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
 
-def animation_sweep(path: Path, sim, task, sweep: dict, geom, fps: float) -> Path | None:
+def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) -> Path | None:
     """figures/sweep.gif: the material as the descriptor runs along task.sweep, on one fixed scale,
     each frame titled with its descriptor and error (samples whose solve failed are left out)."""
     import logging
@@ -173,7 +173,7 @@ def animation_sweep(path: Path, sim, task, sweep: dict, geom, fps: float) -> Pat
 
     logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)  # no "Animation.save using" line
 
-    X, d, u, out, ts, ok = sweep["_solution"]
+    X, u, out, ts, ok = sweep.X, sweep.u, sweep.out, sweep.ts, sweep.ok
     frames = [i for i in range(len(ts)) if ok[i]]
     if not frames:
         return None
@@ -184,7 +184,7 @@ def animation_sweep(path: Path, sim, task, sweep: dict, geom, fps: float) -> Pat
 
     def draw(i):
         ax.clear()
-        title = f"{task.describe(ts[i])}: error {sweep['per_sample'][i]:.3g}"
+        title = f"{task.describe(ts[i])}: error {sweep.record['per_sample'][i]:.3g}"
         if getattr(task, "display", None) is not None:
             _colour_panel(ax, task, np.asarray(X + u[i]), geom, title)
         else:
@@ -212,10 +212,10 @@ def _draw_target(ax, task, out, t):
         ax.plot(obs[:, 0], obs[:, 1], "o", color="#2ca02c", ms=4, label="reached")
 
 
-def figure_shapes(path: Path, task, evaluation: dict, n: int = 16):
+def figure_shapes(path: Path, task, evaluation: Evaluation, n: int = 16):
     """Held-out targets (dashed, fitted onto the pore by scale, rotation and re-indexing) and the pore
     the material reached for each, with its error."""
-    X, d, u, out, ts, ok = evaluation["_solution"]
+    out, ts, ok = evaluation.out, evaluation.ts, evaluation.ok
     k = min(n, len(ts))
     cols = int(np.ceil(np.sqrt(k)))
     rows = int(np.ceil(k / cols))
@@ -226,11 +226,11 @@ def figure_shapes(path: Path, task, evaluation: dict, n: int = 16):
             continue
         _draw_target(ax, task, out[i], ts[i])
         ax.set_aspect("equal")
-        err = evaluation["per_sample"][i]
+        err = evaluation.record["per_sample"][i]
         ax.set_title(f"error {err:.3f}" if ok[i] else "solve failed", fontsize=8)
     axes[0, 0].legend(loc="lower left", fontsize=6)
     fig.suptitle(f"{task.name}: held-out targets and reached pores\n"
-                 f"(mean {task.metric_label} = {evaluation[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
+                 f"(mean {task.metric_label} = {evaluation.record[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
@@ -248,10 +248,10 @@ def _colour_panel(ax, task, points, geom, title):
     ax.axis("off")
 
 
-def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
+def figure_display(path: Path, task, evaluation: Evaluation, geom, n: int = 10):
     """What the material shows: the colour field (black = 1) on the deformed material, the seven
     display windows (red), for the first n evaluation samples, and their input images."""
-    X, d, u, out, ts, ok = evaluation["_solution"]
+    X, u, out, ts = evaluation.X, evaluation.u, evaluation.out, evaluation.ts
     pick = task.one_of_each_digit(ts, n)
     k = len(pick)
     images = not task.lookup
@@ -261,7 +261,7 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
                              gridspec_kw={"height_ratios": ([1, 2.2] if images else [1]) * 2}, squeeze=False)
     for a in axes.ravel():
         a.axis("off")
-    validity = evaluation.get("_validity") or [None] * len(ts)
+    validity = evaluation.validity
     for j, i in enumerate(pick):
         row, col = divmod(j, cols)
         label = int(ts[i][0])
@@ -273,10 +273,10 @@ def figure_display(path: Path, task, evaluation: dict, geom, n: int = 10):
                       f"digit {label}: {verdict}")
         if images:
             axes[row * 2, col].imshow(np.asarray(ts[i][1:]).reshape(28, 28), cmap="Greys")
-    n_invalid = evaluation.get("invalid_states", 0)
+    n_invalid = evaluation.record["invalid_states"]
     fig.suptitle(f"{task.name} ({'lookup table' if task.lookup else 'held-out images'}): "
-                 f"{task.metric_label} = {evaluation[task.metric_name]:.3g} {task.metric_unit}"
-                 + (f"; {n_invalid} of {evaluation['checked_states']} states not physical" if n_invalid else ""),
+                 f"{task.metric_label} = {evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
+                 + (f"; {n_invalid} of {evaluation.record['checked_states']} states not physical" if n_invalid else ""),
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=150)

@@ -16,7 +16,9 @@ import contextlib
 import json
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -24,8 +26,8 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-from ..geometry.validity import StateChecker, summarise
 from ..errors import ConfigError, TrainingError
+from ..geometry.validity import StateChecker, summarise
 from ..schema import OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
 from . import checkpoint
@@ -33,6 +35,21 @@ from .mpi import World
 
 log = logging.getLogger(__name__)
 OBSERVE_CHUNK = 8  # samples observed at once
+
+
+@dataclass
+class Evaluation:
+    """One evaluation at the current parameters: what metrics.json records of it, and the solved states
+    that the figures and the HDF5 fields draw."""
+    record: dict       # step, the task's metric by its name and its extra metrics, failed_solves, the
+                       # validity summary and invalid_samples, per_sample, eval_actuations (JSON)
+    X: Any             # (n_points, 2) reference control points
+    d: Any             # (n, n_actuations) actuations
+    u: Any             # (n, n_points, 2) displacements
+    out: Any           # the task's observations of each state
+    ts: Any            # the descriptors
+    ok: np.ndarray     # (n,) converged
+    validity: list     # each converged state's Validity; None where the solve failed
 
 
 def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int,
@@ -181,7 +198,7 @@ class Trainer:
                                  "parameters or a learning rate too large")
         return f"step {step}: {what}. {cause} ({rates}). Lower optim.lr and start a new run."
 
-    def evaluate(self, ts=None) -> dict:
+    def evaluate(self, ts=None) -> Evaluation:
         """The metric on the task's evaluation set (or on descriptors `ts`) at the current parameters."""
         ts = self.task.eval_set() if ts is None else ts
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
@@ -191,10 +208,10 @@ class Trainer:
         # is every converged state a physical object? (no inverted material, no wall through a wall)
         states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
-        return {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
-                "failed_solves": int((~ok).sum()), **summarise(states), "invalid_samples": invalid,
-                "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist(),
-                "_solution": (X, d, u, out, ts, ok), "_validity": states}
+        record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
+                  "failed_solves": int((~ok).sum()), **summarise(states), "invalid_samples": invalid,
+                  "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
+        return Evaluation(record, X, d, u, out, ts, ok, states)
 
     # -- the loop ---------------------------------------------------------------------------------------
     def checkpoint_dir(self) -> Path:
@@ -228,7 +245,7 @@ class Trainer:
         log.info("resumed from %s at step %d", path, self.state["step"])
         return True
 
-    def fit(self, on_eval=None) -> dict:
+    def fit(self, on_eval=None) -> Evaluation:
         if self.cfg.resume != "false":
             self.try_resume()
         bar, quiet = None, contextlib.nullcontext()
@@ -241,7 +258,7 @@ class Trainer:
         with quiet:
             return self._loop(bar, on_eval)
 
-    def _loop(self, bar, on_eval) -> dict:
+    def _loop(self, bar, on_eval) -> Evaluation:
         last_eval = None
         while self.state["step"] < self.cfg.steps:
             rec = self.step()
@@ -249,12 +266,13 @@ class Trainer:
             if step % self.cfg.eval_every == 0 or step == self.cfg.steps:
                 if self.world.is_root:
                     ev = self.evaluate()
-                    rec[self.task.metric_name] = ev[self.task.metric_name]
-                    rec["invalid_states"] = ev["invalid_states"]
+                    r = ev.record
+                    rec[self.task.metric_name] = r[self.task.metric_name]
+                    rec["invalid_states"] = r["invalid_states"]
                     last_eval = ev
                     log.info("step %d: %s = %.4g %s on the evaluation set (%d failed solves, %d of %d states "
-                             "not physical)", step, self.task.metric_name, ev[self.task.metric_name],
-                             self.task.metric_unit, ev["failed_solves"], ev["invalid_states"], ev["checked_states"])
+                             "not physical)", step, self.task.metric_name, r[self.task.metric_name],
+                             self.task.metric_unit, r["failed_solves"], r["invalid_states"], r["checked_states"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)
