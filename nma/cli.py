@@ -1,8 +1,11 @@
 """What every command shares: config checks before any work, and exit codes a script can rely on.
 
     0  success
-    2  bad input (config or data), reported before any work, as one line naming the field
+    2  bad input (config or data), reported before any work where it can be, as one line naming the
+       field; a run directory the command created for nothing is removed again
     1  a solve or a training step that failed for a stated reason
+    3  the operating system refused (a directory that cannot be written, a disk that is full, ...)
+    130, 143  stopped by Ctrl-C or SIGTERM (128 + the signal): training saves a checkpoint first
     anything unexpected keeps its traceback (Hydra prints it) and is never reported as bad input
 
 `preflight` composes the command line's config exactly as Hydra will (every job of a --multirun
@@ -14,15 +17,20 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+import os
+import shutil
+import signal
 import sys
+import threading
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Callable
 
 from .config import CONF_DIR
-from .errors import ConfigError, SolverError, TrainingError
+from .errors import ConfigError, SolverError, Stopped, TrainingError
 from .schema import explain, register
 
-BAD_INPUT, FAILED = 2, 1
+BAD_INPUT, FAILED, SYSTEM = 2, 1, 3
 MAX_SWEEP_CHECKS = 256
 
 
@@ -87,34 +95,124 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
     if args.help or args.hydra_help or args.info or args.cfg or args.shell_completion \
             or args.config_path or args.config_dir or args.config_name or args.experimental_rerun:
         return None  # Hydra answers these itself
-    first = None
+    first, bad = None, {}  # bad: message -> the jobs it holds for
     try:
-        for overrides in job_overrides(args.overrides, args.multirun):
-            cfg = compose(config_name, overrides)
-            check(without_hydra(cfg), cfg.hydra, args.multirun)
-            first = first if first is not None else cfg.hydra
-    except Exception as exc:  # composition and validation errors only reach here: nothing has run
-        from hydra.errors import HydraException
-        from omegaconf.errors import OmegaConfBaseException
-
-        if not isinstance(exc, (ConfigError, HydraException, OmegaConfBaseException)):
-            raise
-        _say(_one_line(exc) if not isinstance(exc, ConfigError) else str(exc), rank)
+        jobs = job_overrides(args.overrides, args.multirun)
+        varying = [i for i in range(len(jobs[0])) if any(job[i] != jobs[0][i] for job in jobs)]
+        for overrides in jobs:
+            try:
+                cfg = compose(config_name, overrides)
+                check(without_hydra(cfg), cfg.hydra, args.multirun)
+                if not args.multirun:
+                    writable_dir(Path(cfg.hydra.run.dir), "hydra.run.dir")
+                first = first if first is not None else cfg.hydra
+            except Exception as exc:  # composition and validation errors only: nothing has run
+                bad.setdefault(_bad_input(exc, overrides), []).append(" ".join(overrides[i] for i in varying))
+    except KeyboardInterrupt:
+        _say("interrupted (Ctrl-C)", rank)
+        sys.exit(128 + signal.SIGINT)
+    except Exception as exc:  # the command line itself does not parse
+        _say(_bad_input(exc, args.overrides), rank)
+        sys.exit(BAD_INPUT)
+    if bad:  # every bad job of a sweep at once, each message once
+        for message, where in bad.items():
+            _say(message if not args.multirun else
+                 f"{message} (in {len(where)} of {len(jobs)} jobs, e.g. {where[0] or 'every job'})", rank)
         sys.exit(BAD_INPUT)
     return first
 
 
+def _bad_input(exc: Exception, overrides: list[str] = ()) -> str:
+    """The one line of a composition or validation error; anything else is not bad input: re-raised."""
+    from hydra.errors import HydraException, OverrideParseException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if isinstance(exc, ConfigError):
+        return str(exc)
+    if isinstance(exc, OverrideParseException):  # name the override that does not parse
+        from hydra.core.override_parser.overrides_parser import OverridesParser
+
+        for o in overrides:
+            try:
+                OverridesParser.create().parse_overrides([o])
+            except OverrideParseException:
+                return (f"the command-line override {o!r} does not parse: a list is [a, b], a string with "
+                        f"spaces or commas is quoted ('a b'), a sweep is a,b under --multirun")
+    if isinstance(exc, (HydraException, OmegaConfBaseException)):
+        return _one_line(exc)
+    raise exc
+
+
+def writable_dir(path: Path, what: str) -> None:
+    """`path` is, or can be made, a directory this process writes (checked before Hydra creates it)."""
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{what}={path} is an existing file, not a directory")
+    existing = next(p for p in (path, *path.absolute().parents) if p.exists())
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"{what}={path} cannot be written: {existing} is not writable by this user")
+
+
+def _remove_if_empty(run_dir: Path | None) -> None:
+    """A run directory holding only what Hydra wrote on start (.hydra/, the job's log) goes again."""
+    if run_dir is None or not run_dir.is_dir():
+        return
+    if all(p.name == ".hydra" or p.suffix == ".log" for p in run_dir.iterdir()):
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def _os_error(err: OSError) -> str:
+    where = f": {err.filename}" if err.filename else ""
+    return f"{err.strerror or err}{where}" if err.strerror else str(err)
+
+
 @contextmanager
-def exit_codes(rank: int = 0):
-    """Inside a command's task function: bad input -> 2, a stated failure -> 1, one line each."""
+def exit_codes(rank: int = 0, run_dir: Path | None = None):
+    """Inside a command's task function: each outcome a user can act on as one line and its exit code
+    (the module's table); on bad input, `run_dir` is removed if the command left nothing in it."""
     try:
         yield
     except ConfigError as err:
         _say(str(err), rank)
+        if rank == 0:
+            _remove_if_empty(run_dir)
         sys.exit(BAD_INPUT)
     except (SolverError, TrainingError) as err:
         _say(str(err), rank)
         sys.exit(FAILED)
+    except Stopped as err:
+        _say(str(err), rank)
+        sys.exit(128 + err.signum)
+    except KeyboardInterrupt:
+        _say("interrupted (Ctrl-C)", rank)
+        sys.exit(128 + signal.SIGINT)
+    except OSError as err:
+        _say(_os_error(err), rank)
+        sys.exit(SYSTEM)
+
+
+@contextmanager
+def stop_on_signals():
+    """SIGTERM (what SLURM sends before a time limit) and a first Ctrl-C ask a training run to stop after
+    its current step, checkpointed; a second Ctrl-C interrupts at once.  Yields a callable: the signal
+    asked for, or 0."""
+    asked: list[int] = []
+    if threading.current_thread() is not threading.main_thread():  # handlers live in the main thread
+        yield lambda: 0
+        return
+
+    def handler(signum, frame):
+        asked.append(signum)
+        if signum == signal.SIGINT:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        sys.stderr.write(f"{signal.Signals(signum).name}: stopping after the current step, with a checkpoint"
+                         + (" (Ctrl-C again to interrupt at once)" if signum == signal.SIGINT else "") + "\n")
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield lambda: asked[0] if asked else 0
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def json_safe(value):

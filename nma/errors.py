@@ -3,6 +3,7 @@
     ConfigError    bad input (config or data), found before any work where possible: exit 2
     SolverError    Newton could not reach full load; the message says how far it got: exit 1
     TrainingError  training cannot go on for a stated reason (not a solver failure): exit 1
+    Stopped        a run stopped on a signal after checkpointing: exit 128 + the signal
 
 This module imports nothing, so every layer can raise these without importing another's machinery.
 """
@@ -24,3 +25,12 @@ class SolverError(RuntimeError):
 
 class TrainingError(RuntimeError):
     """Training cannot go on for a stated reason (not a solver failure)."""
+
+
+class Stopped(RuntimeError):
+    """A run stopped on a signal (SIGTERM before a scheduler's time limit, Ctrl-C) after checkpointing:
+    exit status 128 + the signal's number."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.signum = signum

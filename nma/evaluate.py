@@ -38,7 +38,7 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     settings = build(EvaluateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
     run, _, _ = load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene.name))
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene))
 
 
 def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
@@ -48,7 +48,7 @@ def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
     s = dataclasses.replace(settings, fidelity=fidelity, solver=solver,
                             logger=dataclasses.replace(settings.logger, name="none"),
                             trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
-    trainer = make_trainer(s, run / "evaluate")
+    trainer = make_trainer(s, run / "evaluate", exact_init=True)  # the run's own parameters, all of them
     t0 = time.perf_counter()
     ev = trainer.evaluate().record
     task = trainer.task
@@ -85,7 +85,7 @@ def evaluate(s: EvaluateConfig) -> dict:
 def hydra_main(cfg: DictConfig) -> None:
     import logging
 
-    with cli.exit_codes():
+    with cli.exit_codes(run_dir=Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)):
         result = evaluate(validate(cfg))
     t, e = result["training_fidelity"], result["evaluated_fidelity"]
     logging.getLogger("nma.evaluate").info(

@@ -43,6 +43,9 @@ def validate(cfg: DictConfig) -> ExportConfig:
     from .run import load_run
 
     settings = build(ExportConfig, cfg)
+    if settings.output and Path(settings.output).is_dir():
+        raise ConfigError(f"output={settings.output} is a directory; name the file to write (e.g. "
+                          f"{Path(settings.output) / ('design.' + settings.format)})")
     run, _, _ = load_run(settings.run)  # the run directory must hold a config and a checkpoint before any work
     if settings.load_cases and run.task.name != "translation":
         raise ConfigError(f"load_cases=true: the load cases (tension, compression, one-sided compression) are "
@@ -268,7 +271,7 @@ def export(s: ExportConfig) -> dict:
 
 @hydra.main(config_path=str(CONF_DIR), config_name="export", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
-    with cli.exit_codes():
+    with cli.exit_codes(run_dir=Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)):
         result = export(validate(cfg))
     states = result.get("evaluation_states")
     if states and not states["valid"]:

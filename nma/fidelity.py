@@ -13,11 +13,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 from functools import lru_cache
 from pathlib import Path
 
 from .errors import ConfigError
-from .schema import Fidelity
+from .schema import Fidelity, SceneConfig
 
 DATA = Path(__file__).resolve().parent / "data" / "fidelity"
 
@@ -74,17 +75,42 @@ def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
     return Choice(fidelity, tolerance, pick, reason)
 
 
-def resolve(fidelity: Fidelity, scene: str) -> Fidelity:
+def resolve(fidelity: Fidelity, scene: SceneConfig) -> Fidelity:
     """A concrete setting: `fidelity` itself, or with a tolerance set (fidelity=auto), the setting its
     scene's front picks, the tolerance kept as the record of what was asked (resolving it again picks
-    the same).  ConfigError where the scene has no front or no setting meets the tolerance."""
-    if fidelity.tolerance is None:
-        return fidelity
-    choice = choose(scene, fidelity.tolerance)
-    logging.getLogger("nma.fidelity").info(choice.reason)
-    pick = choice.fidelity
-    # the front sets the discretisation; what it does not measure is the user's
-    return dataclasses.replace(fidelity, ctrl_per_patch=pick.ctrl_per_patch, quad_points=pick.quad_points)
+    the same).  ConfigError where the scene has no front, no setting meets the tolerance, or the
+    setting's model would not fit in this machine's memory."""
+    if fidelity.tolerance is not None:
+        choice = choose(scene.name, fidelity.tolerance)
+        logging.getLogger("nma.fidelity").info(choice.reason)
+        pick = choice.fidelity
+        # the front sets the discretisation; what it does not measure is the user's
+        fidelity = dataclasses.replace(fidelity, ctrl_per_patch=pick.ctrl_per_patch, quad_points=pick.quad_points)
+    need, have = memory_floor(fidelity, scene), physical_memory()
+    if have and need > have:
+        raise ConfigError(f"fidelity.ctrl_per_patch={fidelity.ctrl_per_patch} with {fidelity.quad_points} Gauss points "
+                          f"needs at least {need / 2**30:.0f} GiB for scene {scene.name} (the element tangents and "
+                          f"quadrature tables of one state), more than this machine's {have / 2**30:.0f} GiB")
+    return fidelity
+
+
+def memory_floor(fidelity: Fidelity, scene: SceneConfig) -> int:
+    """Bytes a solve needs at least: per element its 18 x 18 tangent and, per Gauss point, the physical
+    basis gradients (9 x 2) and the deformation gradient and its stress (2 x 2 each); a lower bound (the
+    sparse factor and the batch come on top).  Patches: four per porous cell, one per solid cell, one
+    per node of a central pore's ring."""
+    cells = "".join(scene.rows())
+    patches = 4 * cells.count("P") + cells.count("S") + len(scene.central_pore)
+    elements = patches * (fidelity.ctrl_per_patch - 2) ** 2
+    per_element = 8 * (18 * 18 + fidelity.quad_points ** 2 * (9 * 2 + 2 * 4))
+    return elements * per_element
+
+
+def physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not POSIX: no up-front check
+        return None
 
 
 def choice_of(fidelity: Fidelity, scene: str) -> Choice | None:

@@ -36,7 +36,7 @@ def validate(cfg: DictConfig) -> TrainConfig:
     TASKS.get(settings.task.name)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene.name))
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
 
 
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
@@ -64,6 +64,39 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     return settings, raw["params"], path
 
 
+def check_run_dir(run_dir: Path, resume: str) -> None:
+    """One run per directory: a new run (trainer.resume=false) does not start in a directory that holds
+    a run already (its checkpoints would mix with the new run's, its metrics and figures be replaced)."""
+    from .errors import ConfigError
+    from .train import checkpoint
+
+    held = [p.name for p in (run_dir / "checkpoints", run_dir / "metrics.json")
+            if p.exists() and (p.is_file() or checkpoint.latest(p))]
+    if resume == "false" and held:
+        raise ConfigError(f"hydra.run.dir={run_dir} holds a run already ({', '.join(held)}): continue it with "
+                          "trainer.resume=true, or start the new run in another directory (without "
+                          "hydra.run.dir each run gets a new one)")
+
+
+def check_init_from(path: Path, s: TrainConfig) -> None:
+    """trainer.init_from names a run of the same scene with a checkpoint: a design carries over only to
+    the scene it was learned on."""
+    from omegaconf import OmegaConf
+
+    from .errors import ConfigError
+    from .train import checkpoint
+
+    if not path.is_dir():
+        raise ConfigError(f"trainer.init_from={path} is not a directory (a training run's directory)")
+    if checkpoint.latest(path / "checkpoints") is None:
+        raise ConfigError(f"trainer.init_from={path} holds no checkpoint (checkpoints/step_*.msgpack)")
+    saved = path / ".hydra" / "config.yaml"
+    scene = OmegaConf.select(OmegaConf.load(saved), "scene.name") if saved.is_file() else None
+    if scene is not None and scene != s.scene.name:
+        raise ConfigError(f"trainer.init_from={path} is a run on scene {scene}; this run's scene is "
+                          f"{s.scene.name}, and a design carries over only to the scene it was learned on")
+
+
 def fingerprint(s: TrainConfig) -> dict:
     """The settings that shape the parameters, the optimiser state or the data: a checkpoint written
     under other values must not be continued silently."""
@@ -85,8 +118,9 @@ def fidelity_record(disc) -> dict:
             "dofs": disc.n_dofs, "auto": None if choice is None else choice.record()}
 
 
-def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None):
-    """The simulator, task, network, logger and trainer of checked, resolved settings (JAX set up first)."""
+def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None, exact_init: bool = False):
+    """The simulator, task, network, logger and trainer of checked, resolved settings (JAX set up first);
+    with `exact_init` every parameter restored from trainer.init_from must fit (re-evaluating a run)."""
     from .runtime import configure_jax
 
     configure_jax()
@@ -110,10 +144,10 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
     return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                   logger, world, fingerprint(s))
+                   logger, world, fingerprint(s), exact_init)
 
 
-def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
+def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     """Train, write the run's figures, fields and metrics.json; the final evaluation's record."""
     from .train import artefacts
     from .train.mpi import World
@@ -128,7 +162,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict) -> dict:
     if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
         on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
             run_dir / "fields" / f"step_{ev.record['step']:07d}", sim, ev, s.trainer.fields_samples)
-    evaluation = trainer.fit(on_eval)
+    evaluation = trainer.fit(on_eval, stop)
     logger.finish()
     if not world.is_root:
         return {}
@@ -181,8 +215,8 @@ def hydra_main(cfg: DictConfig) -> None:
     from .train.mpi import World
 
     run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    with cli.exit_codes(World().rank):
-        train(validate(cfg), run_dir, OmegaConf.to_container(cfg, resolve=True))
+    with cli.exit_codes(World().rank, run_dir), cli.stop_on_signals() as stop:
+        train(validate(cfg), run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
 
 
 def main() -> None:
@@ -194,11 +228,16 @@ def main() -> None:
     def check(cfg, hydra_cfg, multirun: bool):
         settings = validate(cfg)
         world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
-        if settings.trainer.resume == "true" and not multirun:
-            # before Hydra records this run's config over the old one: does the checkpoint fit?
-            found = checkpoint.load_latest(Path(hydra_cfg.run.dir) / "checkpoints", warn=False)
-            if found:
-                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
+        if settings.trainer.init_from:
+            check_init_from(Path(settings.trainer.init_from), settings)
+        if not multirun:
+            run_dir = Path(hydra_cfg.run.dir)
+            check_run_dir(run_dir, settings.trainer.resume)
+            if settings.trainer.resume == "true":
+                # before Hydra records this run's config over the old one: does the checkpoint fit?
+                found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
+                if found:
+                    checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
 
     hydra_cfg = cli.preflight("config", check, sys.argv[1:], world.rank)
     if world.size > 1:

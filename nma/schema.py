@@ -133,7 +133,7 @@ class Schema:
 
     def fail(self, name: str, message: str, value: Any = DC_MISSING):
         got = "" if value is DC_MISSING else f", got {value!r}"
-        raise ConfigError(f"{self.prefix}.{name} {message}{got}")
+        raise ConfigError(f"{self.prefix + '.' if self.prefix else ''}{name} {message}{got}")
 
 
 # -- material, discretisation, solver --------------------------------------------------------------------
@@ -494,7 +494,7 @@ class SimulateConfig:
 class ExportConfig(Schema):
     """`python -m nma.export run=<run dir>`: a trained run's geometry as a file to make it from."""
     run: str = MISSING                      # a training run directory (its .hydra/config.yaml and checkpoints)
-    format: str = choice("svg", ("svg", "dxf", "stl"))
+    format: Optional[str] = field(default=None, metadata={"doc": "svg, dxf or stl; null: output's extension, else svg"})
     scale: float = bounded(1.0, "(0, inf)", doc="millimetres per length unit of the scene")
     thickness: float = bounded(10.0, "(0, inf)", doc="STL: extrusion height in millimetres")
     samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
@@ -503,6 +503,24 @@ class ExportConfig(Schema):
     states: bool = True                     # report whether every deformed state of the task's evaluation set is physical
     load_cases: bool = False                # translation: the paper's Fig. 5 load cases, deformed over the part
     load_fraction: float = bounded(0.5, "(0, 1]", doc="load_cases: the actuation as a fraction of the task's d_max")
+
+    FORMATS: ClassVar[tuple[str, ...]] = ("svg", "dxf", "stl")
+
+    def check(self):
+        given = self.format
+        if given is not None and given not in self.FORMATS:
+            self.fail("format", f"must be one of {list(self.FORMATS)}", given)
+        if self.output is not None:
+            suffix = self.output.rpartition(".")[2].lower() if "." in self.output.rpartition("/")[2] else ""
+            if suffix in self.FORMATS and given not in (None, suffix):
+                self.fail("format", f"is {given} but output={self.output} names a .{suffix} file; give one of them, "
+                                    "or both agreeing")
+            if given is None and suffix not in self.FORMATS:
+                self.fail("output", f"needs format= (one of {list(self.FORMATS)}): its extension names none of them",
+                          self.output)
+            self.format = given or suffix
+        else:
+            self.format = given or "svg"
 
 
 @dataclass

@@ -38,7 +38,7 @@ def validate(cfg: DictConfig) -> SimulateConfig:
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene.name))
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:
@@ -98,7 +98,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
 @hydra.main(config_path=str(CONF_DIR), config_name="simulate", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
     out_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    with cli.exit_codes():
+    with cli.exit_codes(run_dir=out_dir):
         result = run(validate(cfg), out_dir)
     if not result["converged"]:
         print(f"error: {result['error']}", file=sys.stderr)

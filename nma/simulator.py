@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
-from .geometry.scene import scene_from_config
+from .geometry.scene import scene_config, scene_from_config
 from .schema import Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
@@ -48,9 +48,9 @@ class Simulator:
                     solver: Mapping[str, Any] | None = None) -> "Simulator":
         from .fidelity import resolve
 
-        spec, solver = scene_from_config(scene), build(SolverConfig, solver)
-        return cls(discretise(spec, resolve(build(Fidelity, fidelity), spec.name)), solver.linear, solver.newton(),
-                   solver.workers)
+        scene, solver = scene_config(scene), build(SolverConfig, solver)
+        return cls(discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene)), solver.linear,
+                   solver.newton(), solver.workers)
 
     @property
     def n_actuations(self) -> int:

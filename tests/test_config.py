@@ -3,13 +3,15 @@
 Each case runs the command's real entry point in-process (argv patched): it must exit 2 before any
 work, with one line naming the field, no traceback, and no run directory left behind."""
 import math
+import os
+import subprocess
 import sys
 
 import pytest
 
-from nma import cli, run, simulate
-from nma.errors import ConfigError
-from nma.schema import Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
+from nma import cli, export, run, simulate
+from nma.errors import ConfigError, Stopped
+from nma.schema import ExportConfig, Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
 
 BAD_RUN = [
     ("trainer.batch_size=abc", "trainer.batch_size must be an integer, got 'abc'"),
@@ -33,6 +35,10 @@ BAD_RUN = [
     ("trainer.resume=maybe", "trainer.resume must be one of ['false', 'true', 'force'], got 'maybe'"),
     ("model.hidden=[30,0]", "model.hidden must be a list of numbers, each in [1, 100000]"),
     ("logger.mode=loud", "logger.mode must be one of ['offline', 'online', 'disabled'], got 'loud'"),
+    ("scene.pinned=[1,2", "the command-line override 'scene.pinned=[1,2' does not parse"),
+    # a discretisation far beyond any machine's memory (the element tangents alone: ~700 GiB)
+    ("fidelity.ctrl_per_patch=998", "fidelity.ctrl_per_patch=998 with 5 Gauss points needs at least"),
+    ("trainer.init_from=/nonexistent/run", "trainer.init_from=/nonexistent/run is not a directory"),
 ]
 BAD_SIMULATE = [
     ("actuation=1.0", "actuation must be a list such as [1.0, 2.0], got a single float"),
@@ -67,9 +73,15 @@ def test_simulate_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys,
 
 
 def test_every_job_of_a_sweep_is_checked_first(tmp_path, monkeypatch, capsys):
-    argv = ["--multirun", "trainer.seed=0,1", "trainer.batch_size=2,abc", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
+    """Every bad job of a sweep is reported at once (each message once, with a job it holds for), and
+    none has run."""
+    argv = ["--multirun", "trainer.seed=0,1", "trainer.batch_size=2,abc,xyz", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
     code, err = call(run.main, argv, monkeypatch, capsys)
-    assert code == 2 and "trainer.batch_size must be an integer, got 'abc'" in err
+    assert code == 2 and err.strip().splitlines() == [
+        "error: trainer.batch_size must be an integer, got 'abc' (in 2 of 6 jobs, e.g. trainer.seed=0 "
+        "trainer.batch_size=abc)",
+        "error: trainer.batch_size must be an integer, got 'xyz' (in 2 of 6 jobs, e.g. trainer.seed=0 "
+        "trainer.batch_size=xyz)"], err
     assert not (tmp_path / "sweep").exists()
     assert cli.job_overrides(["a=1,2", "b=x", "c=3,4"], True) == [
         ["a=1", "b=x", "c=3"], ["a=1", "b=x", "c=4"], ["a=2", "b=x", "c=3"], ["a=2", "b=x", "c=4"]]
@@ -104,3 +116,92 @@ def test_schema_checks_python_construction_too():
     with pytest.raises(ConfigError, match="scene.groups actuation indices must be 0..1 without gaps"):
         build(SceneConfig, {"name": "x", "cells": "PP", "groups": [
             {"name": "a", "segment": [[0, 1], [0, 4]], "actuation": 1, "direction": [1, 0]}]})
+
+
+def fake_run(directory, scene="translation"):
+    """A run directory as nma.run leaves it, as far as the up-front checks read it."""
+    (directory / ".hydra").mkdir(parents=True)
+    (directory / ".hydra" / "config.yaml").write_text(f"task:\n  name: {scene}\nscene:\n  name: {scene}\n")
+    (directory / "checkpoints").mkdir()
+    (directory / "checkpoints" / "step_0000002.msgpack").write_bytes(b"")
+    (directory / "metrics.json").write_text("{}")
+    return directory
+
+
+def test_a_new_run_never_starts_over_another(tmp_path, monkeypatch, capsys):
+    """One run per directory: a new run in a directory holding one is refused and the old run is left
+    as it was; a file where the run directory belongs is refused too."""
+    old = fake_run(tmp_path / "old")
+    before = {p: p.read_bytes() for p in old.rglob("*") if p.is_file()}
+    code, err = call(run.main, ["trainer.steps=1", f"hydra.run.dir={old}"], monkeypatch, capsys)
+    assert code == 2 and f"hydra.run.dir={old} holds a run already (checkpoints, metrics.json)" in err, err
+    assert "trainer.resume=true" in err and {p: p.read_bytes() for p in old.rglob("*") if p.is_file()} == before
+    (tmp_path / "file").write_text("x")
+    code, err = call(run.main, [f"hydra.run.dir={tmp_path / 'file'}"], monkeypatch, capsys)
+    assert code == 2 and "is an existing file, not a directory" in err
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes anywhere: no read-only directory to test with")
+def test_a_run_directory_that_cannot_be_written_is_refused_up_front(tmp_path, monkeypatch, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        code, err = call(simulate.main, [f"hydra.run.dir={locked / 'run'}"], monkeypatch, capsys)
+    finally:
+        locked.chmod(0o700)
+    assert code == 2 and "cannot be written" in err and not (locked / "run").exists()
+
+
+def test_init_from_a_run_of_another_scene_is_refused(tmp_path, monkeypatch, capsys):
+    other = fake_run(tmp_path / "other", scene="rotation_double")
+    code, err = call(run.main, [f"trainer.init_from={other}", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and "is a run on scene rotation_double; this run's scene is translation" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_bad_input_found_after_start_up_leaves_no_run_directory(tmp_path):
+    """A scene error only the discretisation finds (a tracked point in no patch) is still exit 2 with one
+    line, and the run directory Hydra created for it goes again.  (A subprocess: inside the task
+    function Hydra sets up logging on the test's captured stderr.)"""
+    proc = subprocess.run([sys.executable, "-m", "nma.simulate", "scene.tracked.pointer=[100.0,100.0]",
+                           f"hydra.run.dir={tmp_path / 'run'}"], capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
+    assert proc.returncode == 2 and lines == [
+        "error: scene translation: tracked point pointer at (100.0, 100.0) lies in no patch"], proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_export_follows_the_output_extension_and_refuses_a_contradiction(tmp_path, monkeypatch, capsys):
+    assert build(ExportConfig, {"run": "r", "output": "part.dxf"}).format == "dxf"
+    assert build(ExportConfig, {"run": "r", "output": "part.STL"}).format == "stl"
+    assert build(ExportConfig, {"run": "r"}).format == "svg"
+    with pytest.raises(ConfigError, match="format is svg but output=part.dxf names a .dxf file"):
+        build(ExportConfig, {"run": "r", "output": "part.dxf", "format": "svg"})
+    with pytest.raises(ConfigError, match="output needs format="):
+        build(ExportConfig, {"run": "r", "output": "part.txt"})
+    code, err = call(export.main, [f"run={tmp_path}", f"output={tmp_path}", "format=svg"], monkeypatch, capsys)
+    assert code == 2 and f"output={tmp_path} is a directory" in err
+
+
+@pytest.mark.parametrize("raised, code, line", [
+    (PermissionError(13, "Permission denied", "/runs/x/metrics.json"), 3, "error: Permission denied: /runs/x/metrics.json"),
+    (KeyboardInterrupt(), 130, "error: interrupted (Ctrl-C)"),
+    (Stopped("stopped by SIGTERM after step 3 of 10; checkpoint c saved", 15), 143,
+     "error: stopped by SIGTERM after step 3 of 10; checkpoint c saved"),
+])
+def test_the_users_situation_is_one_line_and_a_documented_exit_code(capsys, raised, code, line):
+    with pytest.raises(SystemExit) as exit_:
+        with cli.exit_codes():
+            raise raised
+    assert exit_.value.code == code and capsys.readouterr().err.strip().splitlines() == [line]
+
+
+def test_a_solve_that_took_no_step_says_so_instead_of_a_zero_residual():
+    import numpy as np
+
+    from nma.solver.newton import INCREMENT_TOO_SMALL, NewtonInfo, failure
+
+    info = NewtonInfo(*(np.asarray(v) for v in (INCREMENT_TOO_SMALL, 12, 0, 14, 0.0, 0.0, 1e-12, [0.0])))
+    message = str(failure(info))
+    assert "last residual" not in message and "no load increment beyond it could be taken" in message

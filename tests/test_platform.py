@@ -202,6 +202,42 @@ def test_kill_and_resume_matches_uninterrupted(tmp_path, translation_run):
     assert_same_params(final_params(killed), final_params(translation_run), rtol=1e-12)
 
 
+def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(tmp_path, translation_run):
+    """SIGTERM (what SLURM sends before a time limit) during the first step: the run finishes that step,
+    checkpoints it (checkpoint_every would not have), says so in one line, exits 143; resuming lands on
+    the uninterrupted run's parameters."""
+    args = ["task=translation", "logger=none", *FAST]
+    stopped = tmp_path / "stopped"
+    proc = subprocess.Popen([sys.executable, "-m", "nma.run", f"hydra.run.dir={stopped}", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 300
+    while not ((stopped / "run.log").exists() and "dofs" in (stopped / "run.log").read_text()):
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)  # the trainer is built; its first step (compiling) takes seconds
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err[-2000:]
+    assert "error: stopped by SIGTERM after step 1 of 2; checkpoint" in err and "trainer.resume=true" in err
+    assert [p.name for p in (stopped / "checkpoints").glob("step_*.msgpack")] == ["step_0000001.msgpack"]
+    nma_run(stopped, *args, "trainer.resume=true")
+    assert_same_params(final_params(stopped), final_params(translation_run), rtol=1e-12)
+
+
+def test_evaluate_refuses_a_checkpoint_its_config_does_not_fit(tmp_path, translation_run):
+    """A run whose recorded config no longer fits its checkpoint (here the network's widths) is not
+    evaluated with a freshly initialised network: ConfigError naming what does not fit."""
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity
+
+    d = copy_run(translation_run, tmp_path / "run")
+    recorded = d / ".hydra" / "config.yaml"
+    cfg = OmegaConf.load(recorded)
+    cfg.model.hidden = [8]
+    OmegaConf.save(cfg, recorded)
+    with pytest.raises(ConfigError, match=r"does not fit this run's config: the network"):
+        evaluate(EvaluateConfig(run=str(d), fidelity=Fidelity(5, 3)))
+
+
 def copy_run(src, dst):
     import shutil
     shutil.copytree(src, dst)

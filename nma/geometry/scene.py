@@ -78,11 +78,16 @@ class PatchSceneSpec:
         return 1 + max((g.actuation for g in self.groups), default=-1)
 
 
-def scene_from_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneSpec:
-    """Build a SceneSpec from a checked SceneConfig or a mapping (checked here); cells top row first."""
+def scene_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneConfig:
+    """A checked SceneConfig from itself or a mapping (cells as one string or a list of rows)."""
     if isinstance(cfg, Mapping) and not isinstance(cfg.get("cells", ""), str):
         cfg = {**cfg, "cells": "\n".join(cfg["cells"])}
-    c: SceneConfig = build(SceneConfig, cfg)
+    return build(SceneConfig, cfg)
+
+
+def scene_from_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneSpec:
+    """Build a SceneSpec from a checked SceneConfig or a mapping (checked here); cells top row first."""
+    c = scene_config(cfg)
     pair = lambda v: (float(v[0]), float(v[1]))
     groups = tuple(Group(g.name, (pair(g.segment[0]), pair(g.segment[1])), g.actuation, pair(g.direction))
                    for g in c.groups)

@@ -357,8 +357,13 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
     status = int(info.status)
     msg = (f"{context}Newton solve failed: {STATUS_TEXT.get(status, status)}; converged up to load factor "
            f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
-           f"load steps and {int(info.cuts)} cuts; last residual {float(info.residual):.3e} "
-           f"(tolerance {float(info.tolerance):.3e})")
+           f"load steps and {int(info.cuts)} cuts; ")
+    if status == NONFINITE_INPUT:
+        msg = f"{context}Newton solve failed: {STATUS_TEXT[status]}"
+    elif float(info.residual) == 0.0:  # no corrector iterate was measured: say what happened instead
+        msg += "no load increment beyond it could be taken (each was cut down to solver.min_increment)"
+    else:
+        msg += f"last residual {float(info.residual):.3e} (tolerance {float(info.tolerance):.3e})"
     if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
         msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
                 f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): a displacement-only discretisation locks there "

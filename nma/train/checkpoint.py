@@ -22,9 +22,13 @@ _NAME = re.compile(r"step_(\d+)\.msgpack$")
 KEEP = 2
 
 
+def path_of(directory: Path, step: int) -> Path:
+    return directory / f"step_{step:07d}.msgpack"
+
+
 def save(directory: Path, step: int, state) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
-    final = directory / f"step_{step:07d}.msgpack"
+    final = path_of(directory, step)
     tmp = directory / f".step_{step:07d}.msgpack.tmp"
     with open(tmp, "wb") as f:
         f.write(serialization.to_bytes(state))

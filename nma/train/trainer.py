@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +27,7 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-from ..errors import ConfigError, TrainingError
+from ..errors import ConfigError, Stopped, TrainingError
 from ..geometry.validity import StateChecker, summarise
 from ..schema import OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
@@ -71,7 +72,7 @@ def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, step
 
 class Trainer:
     def __init__(self, task, sim, model, mat, tcfg: TrainerConfig, ocfg: OptimConfig, run_dir: Path,
-                 logger=None, world: World | None = None, fingerprint: dict | None = None):
+                 logger=None, world: World | None = None, fingerprint: dict | None = None, exact_init: bool = False):
         self.task, self.sim, self.model, self.mat = task, sim, model, mat
         self.cfg, self.ocfg, self.run_dir = tcfg, ocfg, Path(run_dir)
         self.fingerprint = fingerprint or {}
@@ -87,7 +88,7 @@ class Trainer:
         self.tx = make_optimizer(ocfg, list(geom), tcfg.freeze_geometry, tcfg.steps, tcfg.max_nonfinite_steps,
                                  task.frozen_geometry)
         if tcfg.init_from:
-            params = self._init_from(Path(tcfg.init_from), params)
+            params = self._init_from(Path(tcfg.init_from), params, exact_init)
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
@@ -95,24 +96,34 @@ class Trainer:
         self._evaluate = jax.jit(self._forward)
 
     @staticmethod
-    def _init_from(run: Path, params):
+    def _init_from(run: Path, params, exact: bool = False):
         """This run's parameters, with the geometry (and the network, where its shapes fit) of another
-        run's newest checkpoint: how a phase starts from the one before it."""
+        run's newest checkpoint: how a phase starts from the one before it.  Its geometry must fit (a
+        design carries over only to its own scene); with `exact` (re-evaluating the run itself) every
+        parameter must, or the checkpoint is not of this config: ConfigError either way."""
         found = checkpoint.load_latest(run / "checkpoints")
         if found is None:
             raise ConfigError(f"trainer.init_from: {run} holds no checkpoint")
         path, raw = found
         geom, taken = dict(params["geom"]), []
-        for k, v in raw["params"].get("geom", {}).items():
+        saved = raw["params"].get("geom", {})
+        for k, v in saved.items():
             if k in geom and np.shape(v) == geom[k].shape:
                 geom[k] = jnp.asarray(v, geom[k].dtype)
                 taken.append(k)
-        net = params["net"]
+        net, net_error = params["net"], None
         try:
             net = jax.tree_util.tree_map(jnp.asarray, checkpoint.restore(raw["params"]["net"], net))
             taken.append("network")
-        except (ValueError, KeyError, TypeError):
-            pass  # another architecture (the lookup table before the network): keep the fresh network
+        except (ValueError, KeyError, TypeError) as exc:
+            # another architecture (the lookup table before the network): keep the fresh network
+            net_error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        missing = [k for k in geom if k not in taken]
+        if (geom and len(missing) == len(geom)) or (exact and (missing or net_error)):
+            what = [f"geometry {k} (checkpoint {np.shape(saved[k]) if k in saved else 'none'}, this run "
+                    f"{tuple(geom[k].shape)})" for k in missing] + ([f"the network ({net_error})"] if net_error else [])
+            raise ConfigError(f"checkpoint {path} does not fit this run's config: {'; '.join(what)}. "
+                              "It was written for another scene or model")
         log.info("initialised %s from %s", ", ".join(taken) or "nothing", path)
         return {"net": net, "geom": geom}
 
@@ -214,6 +225,19 @@ class Trainer:
         return Evaluation(record, X, d, u, out, ts, ok, states)
 
     # -- the loop ---------------------------------------------------------------------------------------
+    def _stop_if_asked(self, stop, saved: bool) -> None:
+        signum = stop()
+        if self.world.size > 1:  # every rank stops after the same step (a signal may reach only some)
+            signum = signum or (signal.SIGTERM if self.world.allreduce_sum(np.array([float(signum)]))[0] else 0)
+        if not signum:
+            return
+        if not saved:
+            self.save()
+        step = self.state["step"]
+        raise Stopped(f"stopped by {signal.Signals(signum).name} after step {step} of {self.cfg.steps}; checkpoint "
+                      f"{checkpoint.path_of(self.checkpoint_dir(), step)} saved: continue with trainer.resume=true "
+                      f"in the same run directory", signum)
+
     def checkpoint_dir(self) -> Path:
         return self.run_dir / "checkpoints"
 
@@ -245,7 +269,10 @@ class Trainer:
         log.info("resumed from %s at step %d", path, self.state["step"])
         return True
 
-    def fit(self, on_eval=None) -> Evaluation:
+    def fit(self, on_eval=None, stop=None) -> Evaluation:
+        """Train to trainer.steps (resuming first if asked), evaluating and checkpointing on schedule;
+        the last evaluation.  `stop()` (nma.cli.stop_on_signals), asked after every step, returns a
+        signal's number to stop there: the step is checkpointed, then Stopped is raised."""
         if self.cfg.resume != "false":
             self.try_resume()
         bar, quiet = None, contextlib.nullcontext()
@@ -256,9 +283,9 @@ class Trainer:
             bar = tqdm(total=self.cfg.steps, initial=self.state["step"], desc=self.task.name, unit="step")
             quiet = logging_redirect_tqdm()  # log lines above the bar, not through it
         with quiet:
-            return self._loop(bar, on_eval)
+            return self._loop(bar, on_eval, stop)
 
-    def _loop(self, bar, on_eval) -> Evaluation:
+    def _loop(self, bar, on_eval, stop) -> Evaluation:
         last_eval = None
         while self.state["step"] < self.cfg.steps:
             rec = self.step()
@@ -281,8 +308,11 @@ class Trainer:
             if bar:
                 bar.update(1)
                 bar.set_postfix(loss=f"{rec['loss']:.4f}", s_per_step=f"{rec['seconds']:.2f}")
-            if step % self.cfg.checkpoint_every == 0 or step == self.cfg.steps:
+            saved = step % self.cfg.checkpoint_every == 0 or step == self.cfg.steps
+            if saved:
                 self.save()
+            if stop is not None:
+                self._stop_if_asked(stop, saved)
         if bar:
             bar.close()
         if self.world.is_root and last_eval is None:
