@@ -5,7 +5,7 @@
 
 Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set at the
 run's own training fidelity and at the one asked for, with the same code, and writes both side by side
-into <run>/evaluate/<ctrl>x<quad>.json (and one JSON line on stdout): the metric, its per-sample
+into <run>/evaluate/<ctrl>x<quad>[_contact].json (and one JSON line on stdout): the metric, its per-sample
 values, failed solves, how many states are not physical objects (nma/geometry/validity.py), the change,
 and the DOFs of each discretisation.  A design that only works in
 the coarse model shows here as a metric that grows under refinement.
@@ -41,11 +41,12 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene))
 
 
-def evaluate_at(settings, run: Path, fidelity, solver) -> dict:
-    """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`."""
+def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
+    """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`
+    (with `contact` in place of the run's own where given)."""
     from .run import fidelity_record, make_trainer
 
-    s = dataclasses.replace(settings, fidelity=fidelity, solver=solver,
+    s = dataclasses.replace(settings, fidelity=fidelity, solver=solver, contact=contact or settings.contact,
                             logger=dataclasses.replace(settings.logger, name="none"),
                             trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
     trainer = make_trainer(s, run / "evaluate", exact_init=True)  # the run's own parameters, all of them
@@ -64,7 +65,7 @@ def evaluate(s: EvaluateConfig) -> dict:
     run = Path(s.run)
     settings, _, checkpoint = load_run(run)
     trained = evaluate_at(settings, run, settings.fidelity, s.solver)
-    refined = evaluate_at(settings, run, s.fidelity, s.solver)
+    refined = evaluate_at(settings, run, s.fidelity, s.solver, s.contact)
     a, b = np.asarray(trained["per_sample"]), np.asarray(refined["per_sample"])
     result = {"run": str(run), "checkpoint": str(checkpoint), "task": settings.task.name,
               "metric": trained["metric_name"], "unit": trained["unit"],
@@ -74,7 +75,7 @@ def evaluate(s: EvaluateConfig) -> dict:
               if trained["metric"] else None,
               "largest_sample_change": float(np.max(np.abs(b - a))) if len(a) == len(b) else None}
     at = refined["fidelity"]
-    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}.json"
+    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}{'_contact' if at['contact'] else ''}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     result["file"] = str(out)

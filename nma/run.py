@@ -106,7 +106,7 @@ def fingerprint(s: TrainConfig) -> dict:
         trainer["steps"] = s.trainer.steps  # the schedule's length
     return {"task": asdict(s.task), "scene": asdict(s.scene), "model": asdict(s.model),
             "fidelity": asdict(s.fidelity), "material": asdict(s.material), "optim": asdict(s.optim),
-            "trainer": trainer}
+            "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
 
 
 def fidelity_record(disc) -> dict:
@@ -115,7 +115,7 @@ def fidelity_record(disc) -> dict:
 
     choice = choice_of(disc.fidelity, disc.spec.name)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
-            "dofs": disc.n_dofs, "auto": None if choice is None else choice.record()}
+            "dofs": disc.n_dofs, "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
 
 
 def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None, exact_init: bool = False):
@@ -137,7 +137,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     world = world or World()
     # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
     workers = s.solver.workers or max(1, available_cores() // world.local_size)
-    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity), s.solver.linear, s.solver.newton(), workers)
+    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings()), s.solver.linear, s.solver.newton(), workers)
     task = TASKS.get(s.task.name)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,

@@ -20,6 +20,7 @@ from typing import Any, ClassVar, Dict, List, Optional, get_args, get_origin, ge
 from omegaconf import MISSING
 
 from .errors import ConfigError
+from .mechanics.options import ContactSettings
 from .solver.options import NewtonOptions
 
 
@@ -163,6 +164,28 @@ class Fidelity(Schema):
         if (self.ctrl_per_patch - 2) % 3:
             self.fail("ctrl_per_patch", "must be 3k + 2 (5, 8, 11, ...: one knot per design span)",
                       self.ctrl_per_patch)
+
+
+_CONTACT = ContactSettings()  # the contact model's defaults
+
+
+@dataclass
+class ContactConfig(Schema):
+    """The pores' self-contact (nma.mechanics.contact): a barrier between each pore's walls, so that a
+    closing pore's walls touch instead of passing through each other; nothing changes while they are
+    further apart than `distance`."""
+    prefix: ClassVar[str] = "contact"
+    enabled: bool = False
+    distance: float = bounded(_CONTACT.distance, "(0, 0.25]", doc="gap at which the barrier starts, as a fraction "
+                                                                  "of the median pore's width")
+    stiffness: float = bounded(_CONTACT.stiffness, "(0, 1000]", doc="barrier stiffness / (shear modulus x distance)")
+    per_span: int = bounded(_CONTACT.per_span, "[1, 16]", doc="chords per knot span of a pore wall")
+
+    def settings(self) -> Optional[ContactSettings]:
+        """The model's own options, or None with contact off."""
+        if not self.enabled:
+            return None
+        return ContactSettings(**{f.name: getattr(self, f.name) for f in fields(ContactSettings)})
 
 
 _NEWTON = NewtonOptions()  # the solver's defaults; the config declares their allowed ranges
@@ -448,6 +471,7 @@ class TrainConfig:
     task: Any = MISSING                    # a TaskConfig subclass, chosen by the task group
     scene: SceneConfig = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
+    contact: ContactConfig = field(default_factory=ContactConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
@@ -475,6 +499,7 @@ class SimulateConfig:
     """`python -m nma.simulate`: one static solve."""
     scene: SceneConfig = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
+    contact: ContactConfig = field(default_factory=ContactConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
     actuation: Optional[List[float]] = None   # one value per actuation of the scene; null means all zero
@@ -530,6 +555,7 @@ class EvaluateConfig:
     run: str = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
     solver: SolverConfig = field(default_factory=SolverConfig)
+    contact: Optional[ContactConfig] = None  # contact=on|off: evaluate with or without it; null: as the run trained
 
 
 def build(schema: type, values: Any = None):

@@ -18,7 +18,7 @@ import numpy as np
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
 from .geometry.scene import scene_config, scene_from_config
-from .schema import Fidelity, SolverConfig, build
+from .schema import ContactConfig, Fidelity, SolverConfig, build
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend
@@ -45,12 +45,12 @@ class Simulator:
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
-                    solver: Mapping[str, Any] | None = None) -> "Simulator":
+                    solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None) -> "Simulator":
         from .fidelity import resolve
 
-        scene, solver = scene_config(scene), build(SolverConfig, solver)
-        return cls(discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene)), solver.linear,
-                   solver.newton(), solver.workers)
+        scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
+        return cls(discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene), contact.settings()),
+                   solver.linear, solver.newton(), solver.workers)
 
     @property
     def n_actuations(self) -> int:

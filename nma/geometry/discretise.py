@@ -5,7 +5,7 @@ The result is static numpy data (topology, quadrature tables) plus one different
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import jax.numpy as jnp
 import numpy as np
@@ -41,6 +41,7 @@ class Discretisation:
     external_force: np.ndarray    # (2 n_points,) dead load at full load factor
     tracked: dict = field(default_factory=dict)  # name -> (point indices (m*m,), basis weights (m*m,))
     group_points: dict = field(default_factory=dict)  # group name -> point indices
+    contact: object = None  # nma.mechanics.contact.ContactModel: the pores' self-contact; None: no contact
 
     @property
     def n_patches(self) -> int:
@@ -53,6 +54,12 @@ class Discretisation:
     @property
     def n_actuations(self) -> int:
         return self.actuation_matrix.shape[1]
+
+    @property
+    def block_points(self) -> np.ndarray:
+        """(E + Ec, 9) the points of every tangent block: the Bezier elements, then the contact blocks."""
+        blocks = self.elem_points.reshape(-1, 9)
+        return np.concatenate([blocks, self.contact.block_points]) if self.contact else blocks
 
     def analysis_nets(self, params) -> jnp.ndarray:
         """(P, m, m, 2) analysis control nets: the design nets refined by knot insertion (exact)."""
@@ -146,9 +153,10 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
     return -1, np.zeros(2)
 
 
-def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()) -> Discretisation:
+def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity(), contact=None) -> Discretisation:
     """The analysis model of a scene at a concrete `fidelity` (its control points and Gauss points per
-    patch; fidelity=auto is resolved by the command, nma.fidelity.resolve, before it gets here)."""
+    patch; fidelity=auto is resolved by the command, nma.fidelity.resolve, before it gets here), with the
+    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given."""
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
@@ -230,12 +238,18 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
         keep = w > 1e-15
         tracked[name] = (patch_points[patch][keep], w[keep])
 
-    return Discretisation(
+    disc = Discretisation(
         spec=spec, design=design, fidelity=fidelity, n_points=n_points, patch_points=patch_points,
         representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
         quad_weights=weights, check_grads=check_grads, check_weights=check_weights, dirichlet_dofs=dirichlet,
         actuation_matrix=A, free_dofs=free,
         external_force=f_ext, tracked=tracked, group_points=group_points)
+    if contact is None:
+        return disc
+    from ..mechanics.contact import build
+    from .outline import oriented_loops
+
+    return replace(disc, contact=build(oriented_loops(disc, points)[1:], points, contact))
 
 
 __all__ = ["Fidelity", "Discretisation", "discretise", "DESIGN_CTRL"]

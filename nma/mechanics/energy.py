@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from ..geometry.discretise import Discretisation
+from . import contact
 from .material import det2, lame, neo_hookean, piola, tangent
 
 
@@ -32,6 +33,8 @@ class Quadrature(NamedTuple):
     det: jnp.ndarray      # (P, S2, Q) det(dX/dxi), > 0 for a valid geometry
     check_grads: jnp.ndarray    # (P, S2, 16, 9, 2) dN/dX at the 4 x 4 check points
     check_weights: jnp.ndarray  # (P, S2, 16) a 16th of the element's area at each
+    X: jnp.ndarray              # (n_points, 2) the reference control points (for contact)
+    contact_weights: jnp.ndarray  # (Ns, k + 1) reference arc length of each pore-wall vertex (contact)
 
 
 def _physical(dN: jnp.ndarray, Xe: jnp.ndarray, skip_degenerate: bool = False):
@@ -55,7 +58,8 @@ def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
         checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
     else:  # no check points: nothing to compute (or to differentiate in the adjoint)
         checks = (jnp.zeros(det.shape[:2] + (0, 9, 2), X.dtype), jnp.zeros(det.shape[:2] + (0,), X.dtype))
-    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, *checks)
+    walls = contact.vertex_weights(disc.contact, X) if disc.contact else jnp.zeros((0, 0), X.dtype)
+    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, *checks, X, walls)
 
 
 def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, at_checks: bool = False) -> jnp.ndarray:
@@ -77,8 +81,9 @@ def _barrier(J, j_hat, kappa):
 
 
 def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
-    """Integral of W over the reference domain (and the inversion barrier); +inf if any Gauss point, or
-    with the barrier any check point, is inverted (J <= 0)."""
+    """Integral of W over the reference domain (and the inversion barrier, and the contact barrier);
+    +inf if any Gauss point, or with the barrier any check point, is inverted (J <= 0), or with contact a
+    pore's walls have met."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
     J = det2(F)
@@ -90,6 +95,8 @@ def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: j
         Jc = det2(deformation_gradient(disc, quad, u, at_checks=True))
         energy = energy + jnp.sum(quad.check_weights * _barrier(jnp.where(Jc > 0, Jc, j_hat), j_hat, kappa)[0])
         valid = valid & jnp.all((Jc > 0) | (quad.check_weights == 0))
+    if disc.contact:
+        energy = energy + contact.energy(disc.contact, quad.contact_weights, quad.X + u, mu)  # inf: walls met
     return jnp.where(valid, energy, jnp.inf)
 
 
@@ -114,8 +121,9 @@ def _barrier_terms(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, kappa
 
 
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
-    """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass;
-    tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
+    """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass,
+    followed by the contact blocks (Ec, 18, 18) where the scene has contact (disc.block_points lists the
+    points of each); tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
     flat = F.reshape(-1, 2, 2)
@@ -131,18 +139,24 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
         eb, fb, Kb = _barrier_terms(disc, quad, u, kappa)
         energy, fe, Ke = energy + eb, fe + fb, Ke + Kb
     force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
-    return energy, force, Ke.reshape(-1, 18, 18)
+    Ke = Ke.reshape(-1, 18, 18)
+    if disc.contact:
+        ec, fc, Kc = contact.force_and_blocks(disc.contact, quad.contact_weights, quad.X + u, mu)
+        energy, force, Ke = energy + ec, force + fc, jnp.concatenate([Ke, Kc])
+    return energy, force, Ke
 
 
 def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
     return energy_force_tangents(disc, quad, u, mat)[1:]
 
 
-def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray) -> jnp.ndarray:
+def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf) -> jnp.ndarray:
     """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point (and, with
-    the inversion barrier, at every check point).
+    the inversion barrier, at every check point; with contact, before any pore-wall vertex meets a chord).
 
-    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the bound is the smallest positive root."""
+    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the bound is the smallest positive root.  The
+    contact bound is exact up to `horizon` (a caller that takes min(1, fraction * bound) needs no more);
+    beyond it a step is not bounded by contact."""
     bound = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
                                                                         quad.grads))
     if disc.fidelity.inversion_barrier > 0:
@@ -150,11 +164,14 @@ def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.nda
         Fc = deformation_gradient(disc, quad, u, at_checks=True)
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
         bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
+    if disc.contact:
+        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.X + u, du, det_roots, horizon))
     return bound
 
 
-def _first_root(F, dF):
-    """The smallest positive t with det(F + t dF) = 0 over all points (inf if none)."""
+def det_roots(F, dF):
+    """(..., 2) the positive roots t of det(F + t dF) = c0 + c1 t + c2 t^2 (2 x 2 matrices; inf where
+    there is none), computed without cancellation."""
     c0 = det2(F)
     c1 = F[..., 0, 0] * dF[..., 1, 1] + dF[..., 0, 0] * F[..., 1, 1] \
         - F[..., 0, 1] * dF[..., 1, 0] - dF[..., 0, 1] * F[..., 1, 0]
@@ -169,4 +186,9 @@ def _first_root(F, dF):
     r2 = jnp.where(small_c2, inf, c0 / safe_q)
     r1 = jnp.where((r1 > 0) & ((disc_ >= 0) | small_c2) & ~((c1 == 0) & small_c2), r1, inf)
     r2 = jnp.where((r2 > 0) & (disc_ >= 0) & (q != 0), r2, inf)
-    return jnp.min(jnp.minimum(r1, r2))
+    return jnp.stack([r1, r2], -1)
+
+
+def _first_root(F, dF):
+    """The smallest positive t with det(F + t dF) = 0 over all points (inf if none)."""
+    return jnp.min(det_roots(F, dF))

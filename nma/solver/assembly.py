@@ -10,8 +10,9 @@ from ..geometry.discretise import Discretisation
 
 
 def element_dofs(disc: Discretisation) -> np.ndarray:
-    """(E, 18) global dof index of each element tangent row, ordered (a, i) -> 2 a + i."""
-    pts = disc.elem_points.reshape(-1, 9)
+    """(E, 18) global dof index of each tangent block's rows (Bezier elements, then contact blocks),
+    ordered (a, i) -> 2 a + i."""
+    pts = disc.block_points
     return (2 * pts[:, :, None] + np.arange(2)).reshape(-1, 18)
 
 

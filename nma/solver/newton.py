@@ -255,7 +255,8 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     flipped = ~predictor & finite & (slope > 0)
     step = jnp.where(flipped, -du, du)
     # the step may go a fraction of the way to J = 0 (predictor: load moves along)
-    a0 = jnp.minimum(1.0, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0)))
+    a0 = jnp.minimum(1.0, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0),
+                                                           1.0 / opts.step_fraction))
 
     def predict(_):
         return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True)
@@ -297,9 +298,10 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
                             damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
 
 
-def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam):
-    """The largest step along (du, dlam) that keeps J > 0 at every Gauss point (0 where undefined)."""
-    a = max_step(eqs.disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D))
+def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
+    """The largest step along (du, dlam) that keeps J > 0 at every Gauss point (0 where undefined), and
+    with contact no pore's walls meeting (exact up to `horizon`, the longest step the caller takes)."""
+    a = max_step(eqs.disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D), horizon)
     return jnp.where(jnp.isnan(a), 0.0, a)
 
 
@@ -313,7 +315,7 @@ def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearise
     v = jnp.where(jnp.dot(lin.g, v) > 0, -v, v)  # downhill (at a saddle g ~ 0: either sign)
     slope = jnp.dot(lin.g, v)
     reach = 0.1 * p.size / jnp.max(jnp.abs(v))
-    a0 = jnp.minimum(reach, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, v, 0.0))
+    a0 = jnp.minimum(reach, opts.step_fraction * _step_bound(eqs, p, s.u, s.lam, v, 0.0, reach / opts.step_fraction))
 
     def falls(a, Ea):
         return Ea <= E0 + 0.5 * (slope * a + 0.5 * curvature * a * a)

@@ -1,0 +1,320 @@
+"""Self-contact of the pores: a barrier between the walls of each pore, in the same Newton and adjoint.
+
+Without contact a closing pore's walls pass through each other and the solver reports an equilibrium of
+a shape that cannot exist.  Here each pore's wall is cut into its quadratic Bezier segments (one per
+knot span of a boundary edge), each sampled at `per_span` + 1 vertices; between every two segments of
+the same pore that are not neighbours, every vertex of one and every chord of the other's polyline feel
+the barrier of incremental potential contact (Li et al. 2020, "Incremental Potential Contact", Eq. 6)
+on the squared distance d^2:
+
+    E_c = kappa sum_v w_v sum_e b(d^2(v, e) / d_hat^2),   b(s) = -(s - 1)^2 log s  for s < 1, 0 above,
+
+w_v the vertex's reference arc length (trapezoid rule), kappa = stiffness * mu * d_hat (contact pressure
+2 stiffness mu d_hat / d at a gap d << d_hat).  b is C2 and exactly 0 beyond d_hat: while every pore is
+open wider than d_hat the model, its tangent and its adjoint are unchanged to the bit.  b -> inf as the
+gap closes, and Newton's step bound adds the time of impact of every vertex on every chord (continuous
+collision detection: the step never lets a vertex cross a chord), so no iterate interpenetrates.
+
+Why a barrier between wall curves and not a third medium filling the pores (Bluhm, Sigmund and Poulios
+2021): a third medium stiffens every open pore by its regularised stiffness (the answers change by
+O(gamma) before anything touches), while the barrier changes nothing until walls come within d_hat.
+Why only within a pore: two different boundaries (two pores, a pore and the outer boundary) are
+separated by material, which must itself invert (det F -> 0, where the Neo-Hookean energy is infinite)
+before they can meet.  Neighbouring segments are excluded (they share a vertex); a wall folding onto its
+own neighbour segment is a kink, which inverts the material at the wall first.
+
+Each pair of segments is one contact block of 6 control points (12 dofs), padded to the 9 points of a
+Bezier element so that the Hessian's assembly treats it as one more element: the sparsity pattern is
+fixed once per scene (every non-neighbouring pair within each pore), and the blocks of pairs apart by
+more than d_hat are exactly zero.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError
+from ..geometry.bspline import basis_matrix
+from .options import ContactSettings
+
+
+@dataclass(frozen=True, eq=False)
+class ContactModel:
+    """The static tables of a scene's contact: which control points carry each wall segment, where its
+    vertices are, and which segment pairs may touch."""
+    settings: ContactSettings
+    d_hat: float              # activation distance (length)
+    segments: np.ndarray      # (Ns, 3) point index of the 3 control points of each wall segment
+    vertex_basis: np.ndarray  # (Ns, k + 1, 3) weights of those points at the segment's vertices
+    pairs: np.ndarray         # (Ec, 2) segments that may touch (same pore, not neighbours)
+    pores: int                # pores with a wall
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.pairs)
+
+    @property
+    def block_points(self) -> np.ndarray:
+        """(Ec, 9) control points of each contact block: the two segments' 6, the last repeated (zero rows)."""
+        pts = self.segments[self.pairs].reshape(-1, 6)
+        return np.concatenate([pts, np.repeat(pts[:, -1:], 3, axis=1)], axis=1)
+
+
+def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings) -> ContactModel | None:
+    """The contact model of the pore loops (each (n_edges, m) point indices, chained; nma.geometry.outline)
+    at the reference control points `points`; None for a scene without pores."""
+    if not loops:
+        return None
+    m = loops[0].shape[1]
+    spans, k = m - 2, settings.per_span
+    s = np.arange(k + 1) / k
+    segments, basis, pairs, widths = [], [], [], []
+    for loop in loops:
+        first = len(segments)
+        for edge in loop:
+            for j in range(spans):
+                segments.append(edge[j:j + 3])
+                basis.append(basis_matrix((j + s) / spans, m)[:, j:j + 3])
+        n = len(segments) - first
+        i, j = np.triu_indices(n, 2)
+        keep = (j - i) != n - 1  # the loop closes: the last segment neighbours the first
+        pairs.append(first + np.stack([i[keep], j[keep]], axis=1))
+        wall = np.einsum("svc,scd->svd", np.asarray(basis[first:]), points[np.asarray(segments[first:])])
+        widths.append(np.ptp(wall.reshape(-1, 2), axis=0).max())
+    segments, basis = np.asarray(segments, np.int64), np.asarray(basis)
+    d_hat = settings.distance * float(np.median(widths))
+    model = ContactModel(settings, d_hat, segments, basis, np.concatenate(pairs), len(loops))
+    gap = _reference_gap(model, points)
+    if gap <= d_hat:
+        raise ConfigError(f"contact.distance = {settings.distance:g} puts the contact distance at {d_hat:.3g}, but "
+                          f"the walls of a pore are {gap:.3g} apart at rest; lower contact.distance")
+    return model
+
+
+def _reference_gap(model: ContactModel, points: np.ndarray) -> float:
+    v = np.asarray(vertices(model, jnp.asarray(points)))
+    a, b = v[model.pairs[:, 0]], v[model.pairs[:, 1]]
+    return float(np.sqrt(min(_d2_pairs(a, b).min(), _d2_pairs(b, a).min())))
+
+
+def vertices(model: ContactModel, x: jnp.ndarray) -> jnp.ndarray:
+    """(Ns, k + 1, 2) the wall vertices at control points x (n_points, 2)."""
+    return jnp.einsum("svc,scd->svd", jnp.asarray(model.vertex_basis), x[model.segments])
+
+
+def vertex_weights(model: ContactModel, X: jnp.ndarray) -> jnp.ndarray:
+    """(Ns, k + 1) reference arc length of each vertex (trapezoid rule on the reference polyline)."""
+    chord = jnp.linalg.norm(jnp.diff(vertices(model, X), axis=1), axis=-1)  # (Ns, k)
+    pad = jnp.zeros_like(chord[:, :1])
+    return 0.5 * (jnp.concatenate([chord, pad], 1) + jnp.concatenate([pad, chord], 1))
+
+
+def _point_chord_d2(p, a, b, xp=jnp):
+    """Squared distance from points p to chords [a, b] (broadcast)."""
+    e = b - a
+    t = xp.clip(xp.sum((p - a) * e, -1) / xp.maximum(xp.sum(e * e, -1), 1e-300), 0.0, 1.0)
+    r = p - a - t[..., None] * e
+    return xp.sum(r * r, -1)
+
+
+def _d2_pairs(va, vb, xp=np):
+    """(..., k + 1, k) squared distances from the vertices of va to the chords of vb (..., k + 1, 2)."""
+    return _point_chord_d2(va[..., :, None, :], vb[..., None, :-1, :], vb[..., None, 1:, :], xp)
+
+
+def _barrier(s):
+    """b(s) = -(s - 1)^2 log s below 1, 0 above (C2 at s = 1); s > 0 is the caller's to keep."""
+    inside = s < 1.0
+    safe = jnp.where(inside & (s > 0), s, 1.0)
+    return jnp.where(inside, -(safe - 1.0) ** 2 * jnp.log(safe), 0.0)
+
+
+def stiffness(model: ContactModel, mu) -> jnp.ndarray:
+    return model.settings.stiffness * mu * model.d_hat
+
+
+# -- broad phase: a block's terms are computed only where its two segments' boxes are near ---------------
+
+def _box_gaps(model: ContactModel, v: jnp.ndarray) -> jnp.ndarray:
+    """(Ec,) distance between the boxes of each block's two segments' vertices: no vertex of one is closer
+    to a chord of the other (chords lie in the box of their ends)."""
+    lo, hi = v.min(axis=1), v.max(axis=1)                                   # (Ns, 2)
+    A, B = model.pairs[:, 0], model.pairs[:, 1]
+    apart = jnp.maximum(jnp.maximum(lo[B] - hi[A], lo[A] - hi[B]), 0.0)
+    return jnp.sqrt(jnp.sum(apart * apart, -1))
+
+
+def _over_near(model: ContactModel, near: jnp.ndarray, step, init):
+    """Fold step(acc, blocks) over the blocks where `near` holds, a fixed-size chunk of block indices at a
+    time (padded with -1, which step must ignore): a jitted program needs fixed shapes, and the near
+    blocks are few while the pores are open (none: no work).  Forward only (not differentiated)."""
+    n = model.n_blocks
+    size = min(n, max(16, n // 16))
+    chunks = -(-n // size)
+    idx = jnp.nonzero(near, size=chunks * size, fill_value=-1)[0]
+    count = -(-jnp.sum(near) // size)
+    return jax.lax.fori_loop(0, count, lambda i, acc: step(acc, jax.lax.dynamic_slice(idx, (i * size,), (size,))),
+                             init)
+
+
+def _faces(model: ContactModel, blocks):
+    """Each gathered block's two sides: the segments whose vertices (own) face the chords (other)."""
+    pairs = jnp.asarray(model.pairs)[jnp.maximum(blocks, 0)]                 # (b, 2)
+    return pairs, jnp.flip(pairs, -1)
+
+
+# -- energy, force, tangent blocks -----------------------------------------------------------------------
+
+def _barrier_derivatives(s):
+    """b, b', b'' at s (0 at and above 1); s > 0 is the caller's to keep."""
+    inside = s < 1.0
+    s = jnp.where(inside & (s > 0), s, 1.0)
+    log, q = jnp.log(s), s - 1.0
+    values = (-q * q * log, -2.0 * q * log - q * q / s, -2.0 * log - 4.0 * q / s + q * q / (s * s))
+    return [jnp.where(inside, v, 0.0) for v in values]
+
+
+_EYE = np.eye(2)
+
+
+def _end_hessian(k: int) -> np.ndarray:
+    """(3, 2, 3, 2) Hessian of |p - z_k|^2 in (p, a, b): 2 (e_0 - e_k)(e_0 - e_k)^T per component."""
+    v = np.zeros(3)
+    v[0], v[k] = 1.0, -1.0
+    return 2.0 * np.einsum("z,y,ij->ziyj", v, v, _EYE)
+
+
+def _line_d2(z):
+    """Squared distance from z[0] to the line through z[1], z[2]: cross(b - a, p - a)^2 / |b - a|^2."""
+    p, a, b = z
+    e, r = b - a, p - a
+    c = e[0] * r[1] - e[1] * r[0]
+    return c * c / jnp.dot(e, e)
+
+
+def _term_derivatives(z, w, inv_d2):
+    """Energy, gradient (3, 2) and Hessian (3, 2, 3, 2) of one term, w b(d^2(z[0], [z[1], z[2]]) / d_hat^2),
+    in closed form per regime of the point-chord distance: nearest to an end (|p - a|^2 or |p - b|^2,
+    constant Hessians) or to the chord's inside (the squared distance to its line)."""
+    p, a, b = z
+    e = b - a
+    t = jnp.dot(p - a, e) / jnp.maximum(jnp.dot(e, e), 1e-300)
+    end = jnp.where(t <= 0.0, 1, 2)
+    r = p - jnp.where(t <= 0.0, a, b)
+    v = jnp.zeros(3).at[0].set(1.0).at[end].set(-1.0)
+    inner = (t > 0.0) & (t < 1.0)
+    g_end = 2.0 * v[:, None] * r[None, :]
+    H_end = jnp.where(end == 1, _end_hessian(1), _end_hessian(2))
+    d2 = jnp.where(inner, _line_d2(z), jnp.dot(r, r))
+    g = jnp.where(inner, jax.grad(_line_d2)(z), g_end)
+    H = jnp.where(inner, jax.hessian(_line_d2)(z), H_end)
+    b0, b1, b2 = _barrier_derivatives(d2 * inv_d2)
+    gs = g * inv_d2
+    return w * b0, w * b1 * gs, w * (b2 * jnp.einsum("zi,yj->ziyj", gs, gs) + b1 * H * inv_d2)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def energy(model: ContactModel, weights, x, mu) -> jnp.ndarray:
+    """The contact energy at deformed control points x (n_points, 2); +inf where a vertex has met a chord
+    it faces (the walls have interpenetrated).  Evaluated on the blocks whose boxes are within d_hat (what
+    the line search calls); differentiated (the residual, the adjoint's pullback) as one expression over
+    all blocks, which JAX differentiates twice cheaply."""
+    v = vertices(model, x)
+
+    def step(acc, blocks):
+        own, other = _faces(model, blocks)                                  # (b, 2) segments
+        d2 = _d2_pairs(v[own], v[other], jnp)                               # (b, 2, k + 1, k)
+        real = (blocks >= 0)[:, None, None, None]
+        e = jnp.sum(jnp.where(real, weights[own][..., None] * _barrier(d2 / model.d_hat ** 2), 0.0))
+        return acc[0] + e, acc[1] & jnp.all((d2 > 0) | ~real)
+
+    e, apart = _over_near(model, _box_gaps(model, v) < model.d_hat, step, (jnp.zeros((), x.dtype), jnp.asarray(True)))
+    return jnp.where(apart, stiffness(model, mu) * e, jnp.inf)
+
+
+def _energy_everywhere(model: ContactModel, weights, x, mu) -> jnp.ndarray:
+    """`energy` over every block at once (the same value)."""
+    v = vertices(model, x)
+    A, B = model.pairs[:, 0], model.pairs[:, 1]
+    d2 = jnp.stack([_d2_pairs(v[A], v[B], jnp), _d2_pairs(v[B], v[A], jnp)], axis=1)   # (Ec, 2, k + 1, k)
+    w = jnp.stack([weights[A], weights[B]], axis=1)[..., None]
+    e = stiffness(model, mu) * jnp.sum(w * _barrier(d2 / model.d_hat ** 2))
+    return jnp.where(jnp.all(d2 > 0), e, jnp.inf)
+
+
+@energy.defjvp
+def _energy_jvp(model, primals, tangents):
+    return jax.jvp(partial(_energy_everywhere, model), primals, tangents)
+
+
+def force_and_blocks(model: ContactModel, weights, x, mu):
+    """Energy, nodal force (n_points, 2) and the (Ec, 18, 18) tangent blocks (dofs ordered as
+    block_points, (a, i) -> 2 a + i) of the contact at deformed control points x.  Only blocks whose
+    segments come within d_hat contribute, few while the pores are open: only they are differentiated."""
+    k = model.settings.per_span
+    basis, seg = jnp.asarray(model.vertex_basis), jnp.asarray(model.segments)
+    kappa, inv_d2 = stiffness(model, mu), 1.0 / model.d_hat ** 2
+    n = model.n_blocks
+
+    def step(acc, blocks):
+        own, other = _faces(model, blocks)                                  # (b, 2)
+        # every term of a block: its three points (vertex; chord ends) as weights over the block's 6
+        # control points (first segment's 3, then the second's)
+        vb = basis[own][:, :, :, None, :]                                   # (b, 2, k + 1, 1, 3)
+        ab, bb = basis[other][:, :, None, :-1, :], basis[other][:, :, None, 1:, :]  # (b, 2, 1, k, 3)
+        shape = (len(blocks), 2, k + 1, k, 3)
+        zero = jnp.zeros(shape)
+        rows = jnp.stack([jnp.concatenate([jnp.broadcast_to(vb, shape), zero], -1),
+                          jnp.concatenate([zero, jnp.broadcast_to(ab, shape)], -1),
+                          jnp.concatenate([zero, jnp.broadcast_to(bb, shape)], -1)], axis=-2)  # (b, 2, k+1, k, 3, 6)
+        rows = rows.at[:, 1].set(jnp.roll(rows[:, 1], 3, axis=-1))        # side 1: B's vertices, A's chords
+        pts = seg[jnp.asarray(model.pairs)[jnp.maximum(blocks, 0)]].reshape(-1, 6)  # (b, 6)
+        z = jnp.einsum("bsvezc,bcd->bsvezd", rows, x[pts])
+        w = jnp.where((blocks >= 0)[:, None, None], weights[own], 0.0)
+        w = jnp.broadcast_to(w[..., None], shape[:-1])
+        flat = lambda a: a.reshape((-1,) + a.shape[4:])  # noqa: E731  (terms in one axis)
+        R, Z, W = flat(rows), flat(z), flat(w)
+        e, gz, Hz = jax.vmap(_term_derivatives, (0, 0, None))(Z, W, inv_d2)   # (T,), (T, 3, 2), (T, 3, 2, 3, 2)
+        e, gz, Hz = kappa * jnp.sum(e), kappa * gz, kappa * Hz
+        per = 2 * (k + 1) * k
+        g = jnp.einsum("tzc,tzi->tci", R, gz).reshape(-1, per, 6, 2).sum(1)
+        H = jnp.einsum("tzc,tziyj,tyd->tcidj", R, Hz, R).reshape(-1, per, 12, 12).sum(1)
+        target = jnp.where(blocks >= 0, blocks, n)                          # padding lands past the end
+        return acc[0] + e, acc[1].at[pts].add(g), acc[2].at[target, :12, :12].add(H)
+
+    init = (jnp.zeros((), x.dtype), jnp.zeros_like(x), jnp.zeros((n + 1, 18, 18), x.dtype))
+    e, force, K = _over_near(model, _box_gaps(model, vertices(model, x)) < model.d_hat, step, init)
+    return e, force, K[:n]
+
+
+def time_of_impact(model: ContactModel, x, dx, roots, horizon=jnp.inf) -> jnp.ndarray:
+    """The smallest t in (0, horizon] at which a vertex moving along x + t dx meets a chord it faces (inf
+    if none): the vertex is on the chord's line where det[a - p, b - p], quadratic in t, vanishes (`roots`
+    gives its positive roots), and on the chord if its projection falls within it there.  Blocks whose
+    boxes are further apart than horizon times their segments' largest motions cannot meet within the
+    horizon: only the others are solved for."""
+    v, dv = vertices(model, x), vertices(model, dx)
+    speed = jnp.linalg.norm(dv, axis=-1).max(axis=1)                         # (Ns,)
+    A, B = model.pairs[:, 0], model.pairs[:, 1]
+    near = _box_gaps(model, v) <= horizon * (speed[A] + speed[B])
+
+    def step(acc, blocks):
+        own, other = _faces(model, blocks)
+        p, dp = v[own][:, :, :, None], dv[own][:, :, :, None]                 # (b, 2, k + 1, 1, 2)
+        a, da = v[other][:, :, None, :-1], dv[other][:, :, None, :-1]         # (b, 2, 1, k, 2)
+        b, db = v[other][:, :, None, 1:], dv[other][:, :, None, 1:]
+        t = roots(jnp.stack(jnp.broadcast_arrays(a - p, b - p), -1),
+                  jnp.stack(jnp.broadcast_arrays(da - dp, db - dp), -1))      # (b, 2, k + 1, k, 2)
+        at = lambda z, dz: z[..., None, :] + jnp.where(jnp.isfinite(t), t, 0.0)[..., None] * dz[..., None, :]  # noqa: E731
+        pt, at_, bt = at(p, dp), at(a, da), at(b, db)
+        chord = bt - at_
+        proj = jnp.sum((pt - at_) * chord, -1) / jnp.maximum(jnp.sum(chord * chord, -1), 1e-300)
+        hit = (jnp.isfinite(t) & (proj >= 0.0) & (proj <= 1.0) & (t <= horizon)
+               & (blocks >= 0)[:, None, None, None, None])
+        return jnp.minimum(acc, jnp.min(jnp.where(hit, t, jnp.inf), initial=jnp.inf))
+
+    return _over_near(model, near, step, jnp.asarray(jnp.inf, x.dtype))

@@ -1,0 +1,13 @@
+"""The mechanical model's own options, plain values (no config machinery; nma.schema declares their ranges)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ContactSettings:
+    """The pores' self-contact (nma.mechanics.contact)."""
+    distance: float = 0.02   # d_hat, the gap at which the barrier starts, as a fraction of the median
+    # pore's width in the scene's canonical design (radii mid-range; a constant while training moves them)
+    stiffness: float = 1.0   # kappa / (mu d_hat): contact pressure 2 stiffness mu d_hat / d at a gap d << d_hat
+    per_span: int = 3        # chords per Bezier segment of a pore wall

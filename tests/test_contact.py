@@ -1,0 +1,160 @@
+"""The pores' self-contact (nma/mechanics/contact.py): nothing changes while the pores are open, a closing
+pore converges to a touching state with no overlap, and the force, tangent, step bound and adjoint are
+the derivatives they claim to be (central differences).
+
+The scene is one porous cell (radii 0.8) pinned at its bottom and pressed down in the middle of its top:
+at 4 of its 5 length units the top wall reaches the bottom wall, so without contact the pore's boundary
+passes through itself (nma/geometry/validity.py sees it) while the solver reports convergence."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma.errors import ConfigError
+from nma.geometry.discretise import discretise
+from nma.geometry.scene import scene_from_config
+from nma.geometry.validity import StateChecker
+from nma.mechanics import contact
+from nma.mechanics.energy import det_roots, energy_force_tangents, quadrature
+from nma.mechanics.material import material
+from nma.mechanics.options import ContactSettings
+from nma.schema import ContactConfig, Fidelity, build
+from nma.simulator import Simulator
+from nma.solver.options import NewtonOptions
+
+CELL = {"name": "cell", "cells": "P", "radii_init": 0.8, "pinned": [[0, 0], [5, 0], [2.5, 0]],
+        "groups": [{"name": "press", "segment": [[1.25, 5], [3.75, 5]], "actuation": 0, "direction": [0, -1]}]}
+MAT = material(0.07, 0.3)
+OPEN, CLOSED = 2.0, 4.0  # press depths: the pore's walls 15 x d_hat apart, and pressed onto each other
+TIGHT = NewtonOptions(rtol=1e-12, max_iters=500)
+
+
+@pytest.fixture(scope="module")
+def cell():
+    spec = scene_from_config(CELL)
+    sims = {on: Simulator(discretise(spec, Fidelity(5, 3), ContactSettings() if on else None), "superlu", TIGHT)
+            for on in (False, True)}
+    params = sims[True].init_params()
+    X = sims[True].reference_points(params)
+    return sims, params, X, StateChecker(sims[True].disc, X)
+
+
+def smallest_gap(model, x):
+    v = np.asarray(contact.vertices(model, jnp.asarray(x)))
+    a, b = v[model.pairs[:, 0]], v[model.pairs[:, 1]]
+    return float(np.sqrt(min(contact._d2_pairs(a, b).min(), contact._d2_pairs(b, a).min())))
+
+
+def test_the_model_is_the_pores_walls(cell):
+    sims, _, X, _ = cell
+    model = sims[True].disc.contact
+    # one pore, 4 patch edges of 3 knot spans: 12 segments, each paired with all but itself and its 2 neighbours
+    assert model.pores == 1 and len(model.segments) == 12 and model.n_blocks == 12 * 9 // 2
+    # d_hat: 2% of the pore's width in the scene's canonical design (radii mid-range: 0.5 of the 5-unit
+    # cell), a constant of the discretisation while training moves the radii
+    assert model.d_hat == pytest.approx(0.02 * 0.5 * 5.0)
+    assert sims[True].disc.block_points.shape == (sims[False].disc.block_points.shape[0] + model.n_blocks, 9)
+
+
+def test_open_pores_change_nothing(cell):
+    """Walls further apart than d_hat: the same equilibrium and the same gradient, to round-off."""
+    sims, params, X, _ = cell
+    d = jnp.array([OPEN])
+    w = jax.random.normal(jax.random.PRNGKey(0), X.shape)
+
+    def loss(sim):
+        return lambda p: jnp.sum(w * sim.equilibrium(sim.reference_points(p), d, MAT).u)
+
+    off, on = (sims[k].solve(params, d, MAT) for k in (False, True))
+    assert smallest_gap(sims[True].disc.contact, X + on.u) > 10 * sims[True].disc.contact.d_hat
+    np.testing.assert_allclose(on.u, off.u, rtol=0, atol=1e-10)
+    g_off, g_on = (jax.grad(loss(sims[k]))(params)["radii"] for k in (False, True))
+    np.testing.assert_allclose(g_on, g_off, rtol=1e-10, atol=1e-14)
+
+
+def test_a_closing_pore_touches_instead_of_passing_through(cell):
+    sims, params, X, checker = cell
+    d = jnp.array([CLOSED])
+    without = sims[False].solve(params, d, MAT)
+    assert without.converged and not checker.check(without.u).valid  # the pore passes through itself
+    assert checker.check(without.u).self_crossing == ["pore at (2.5, 2.5)"]
+    eq = sims[True].solve(params, d, MAT)
+    state = checker.check(eq.u)
+    assert eq.converged and state.valid, state.problems()
+    gap = smallest_gap(sims[True].disc.contact, X + eq.u)
+    assert 0 < gap < sims[True].disc.contact.d_hat  # touching: the barrier carries the load
+
+
+@pytest.fixture(scope="module")
+def touching(cell):
+    sims, params, X, _ = cell
+    sim = sims[True]
+    return sim, params, X, jnp.asarray(sim.solve(params, jnp.array([CLOSED]), MAT).u)
+
+
+def test_force_and_tangent_against_central_differences(touching):
+    sim, _, X, u = touching
+    disc = sim.disc
+    quad = quadrature(disc, X)
+    model, weights, mu = disc.contact, quad.contact_weights, MAT[0] / (2 * (1 + MAT[1]))
+    energy = lambda x: contact.energy(model, weights, x, mu)  # noqa: E731
+    e, force, blocks = contact.force_and_blocks(model, weights, X + u, mu)
+    assert float(e) > 0 and float(e) == pytest.approx(float(energy(X + u)), rel=1e-12)
+    rng = np.random.default_rng(1)
+    pts = disc.block_points[len(disc.elem_points.reshape(-1, 9)):]
+    dofs = (2 * pts[:, :, None] + np.arange(2)).reshape(len(pts), 18)
+    for _ in range(3):
+        v = jnp.asarray(rng.standard_normal(X.shape))
+        h = 1e-6
+        fd = (energy(X + u + h * v) - energy(X + u - h * v)) / (2 * h)
+        assert float(jnp.sum(force * v)) == pytest.approx(float(fd), rel=1e-6)
+        # K v from the blocks against the force's central difference
+        Kv = np.zeros(2 * disc.n_points)
+        np.add.at(Kv, dofs, np.einsum("eab,eb->ea", np.asarray(blocks), np.asarray(v).reshape(-1)[dofs]))
+        f = lambda x: contact.force_and_blocks(model, weights, x, mu)[1]  # noqa: E731
+        fd_K = (f(X + u + h * v) - f(X + u - h * v)).reshape(-1) / (2 * h)
+        np.testing.assert_allclose(Kv, fd_K, rtol=1e-5, atol=1e-7 * np.abs(fd_K).max())
+    # the assembled tangent is the elastic blocks followed by these
+    _, _, kel = energy_force_tangents(disc, quad, u, MAT)
+    np.testing.assert_allclose(kel[-model.n_blocks:], blocks)
+
+
+def test_adjoint_in_contact_against_central_differences(touching):
+    """The gradient of the contact equilibrium with respect to the radii, through the adjoint."""
+    sim, params, X, _ = touching
+    d = jnp.array([CLOSED])
+    w = jax.random.normal(jax.random.PRNGKey(2), X.shape)
+
+    def loss(radii):
+        p = {**params, "radii": radii}
+        return jnp.sum(w * sim.equilibrium(sim.reference_points(p), d, MAT).u)
+
+    radii = params["radii"]
+    g = jax.grad(loss)(radii)
+    v = jax.random.normal(jax.random.PRNGKey(3), radii.shape)
+    h = 1e-5
+    fd = (loss(radii + h * v) - loss(radii - h * v)) / (2 * h)
+    assert float(jnp.sum(g * v)) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_time_of_impact_stops_at_the_first_touch(cell):
+    """Moving from rest towards the no-contact state at CLOSED, whose pore has passed through itself:
+    the step bound is where a wall vertex first reaches a chord, and not before."""
+    sims, params, X, _ = cell
+    model = sims[True].disc.contact
+    du = jnp.asarray(sims[False].solve(params, jnp.array([CLOSED]), MAT).u)
+    t = float(contact.time_of_impact(model, X, du, det_roots))
+    assert 0 < t < 1
+    assert smallest_gap(model, X + (1 - 1e-6) * t * du) > 0
+    assert smallest_gap(model, X + t * du) < 1e-9 * model.d_hat
+    assert float(contact.time_of_impact(model, X, du, det_roots, horizon=0.5 * t)) == np.inf
+
+
+def test_settings_are_checked():
+    with pytest.raises(ConfigError, match=r"contact.distance must be .* \(0, 0.25\]"):
+        build(ContactConfig, {"enabled": True, "distance": 0.5})
+    assert build(ContactConfig, {}).settings() is None
+    # a contact distance wider than the gap between a pore's walls at rest is refused, naming the field
+    narrow = {**CELL, "radii_init": 0.1, "radii_bounds": [0.05, 0.9]}
+    with pytest.raises(ConfigError, match="contact.distance"):
+        discretise(scene_from_config(narrow), Fidelity(5, 2), ContactSettings(distance=0.25))
