@@ -2,6 +2,7 @@
 
     python experiments/repro.py translation [--baseline-steps 150] [extra Hydra overrides ...]
     python experiments/repro.py translation --summarise     # tables and figures again, from the runs
+    python experiments/repro.py shape_matching --out outputs/repro_contact/shape_matching contact=on
 
 Runs `python -m nma.run experiment=repro_<name>` twice (geometry learned; geometry frozen, the
 paper's control-only baseline) into outputs/repro/<name>/{joint,baseline}/ and writes
@@ -81,9 +82,11 @@ def main():
                                      "digital_mnist"])
     ap.add_argument("--baseline-steps", type=int, default=150)
     ap.add_argument("--summarise", action="store_true", help="rewrite the tables and figures from the runs only")
+    ap.add_argument("--out", type=Path, help="where the runs go (default outputs/repro/<name>; e.g. "
+                                             "outputs/repro_contact/<name> with the override contact=on)")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides for both runs")
-    args = ap.parse_args()
-    out = ROOT / "outputs" / "repro" / args.name
+    args = ap.parse_intermixed_args()  # overrides may follow the options
+    out = args.out or ROOT / "outputs" / "repro" / args.name
     if args.name == "digital_mnist":
         return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
     refine = (ROOT / "conf" / "experiment" / f"repro_{args.name}_refine.yaml").exists()
@@ -109,13 +112,17 @@ def summarise(out: Path, experiment: str, refine: bool):
     total = sum(seconds.values())
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
-    fid = lambda r: f"{r['fidelity']['ctrl_per_patch']} x {r['fidelity']['quad_points']}"
+    fid = lambda r: (f"{r['fidelity']['ctrl_per_patch']} x {r['fidelity']['quad_points']}"  # noqa: E731
+                     + (", contact" if r["fidelity"].get("contact") else ""))
+    physical = lambda r: (f"{r['invalid_states']} of {r['checked_states']}"  # noqa: E731  (older runs: unknown)
+                          if "invalid_states" in r else "not checked")
     summary = {"experiment": experiment, "metric": name, "unit": unit, "joint": joint["value"],
                "baseline": baseline["value"], "joint_over_baseline": ratio,
                "joint_steps": coarse["step"], "baseline_steps": baseline["step"],
                "joint_seconds": coarse["wall_seconds"], "baseline_seconds": baseline["wall_seconds"],
                "no_actuation": joint["no_actuation"],
                "total_seconds": total, "failed_solves": [joint["failed_solves"], baseline["failed_solves"]],
+               "invalid_states": [joint.get("invalid_states"), baseline.get("invalid_states")],
                "runs": {r: str(out / r) for r in runs}}
     rows = [("joint (network + geometry)", coarse)]
     if refine:
@@ -126,10 +133,10 @@ def summarise(out: Path, experiment: str, refine: bool):
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
     (out / "comparison.md").write_text(
         f"# {experiment}: learned design vs geometry-frozen baseline\n\n"
-        f"| run | fidelity | steps | {name} [{unit}] | wall time [s] |\n|---|---|---|---|---|\n"
-        + "".join(f"| {label} | {fid(r)} | {r['step']} | {r['value']:.4g} | {r['wall_seconds']:.0f} |\n"
+        f"| run | fidelity | steps | {name} [{unit}] | states not physical | wall time [s] |\n|---|---|---|---|---|---|\n"
+        + "".join(f"| {label} | {fid(r)} | {r['step']} | {r['value']:.4g} | {physical(r)} | {r['wall_seconds']:.0f} |\n"
                   for label, r in rows)
-        + f"| no actuation (initial design at rest) | {fid(joint)} | 0 | {joint['no_actuation']:.4g} | 0 |\n\n"
+        + f"| no actuation (initial design at rest) | {fid(joint)} | 0 | {joint['no_actuation']:.4g} | | 0 |\n\n"
         f"joint / baseline = {ratio:.3f}; total {total / 60:.1f} min\n")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     evals = lambda r, offset=0: [(h["step"] + offset, h[name]) for h in r["history"] if name in h]

@@ -66,12 +66,17 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
     return [list(job) for job in itertools.islice(itertools.product(*choices), MAX_SWEEP_CHECKS)]
 
 
-def compose(config_name: str, overrides: list[str]):
-    """The composed config of one job, with its `hydra` node (run directory and so on)."""
+def compose(config_name: str, overrides: list[str], config_dir: str | None = None):
+    """The composed config of one job, with its `hydra` node (run directory and so on); `config_dir`:
+    Hydra's --config-dir, a directory of configs searched besides conf/."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
     register()
+    if config_dir is not None:
+        if not Path(config_dir).is_dir():
+            raise ConfigError(f"--config-dir {config_dir} is not a directory")
+        overrides = [*overrides, f"hydra.searchpath=[file://{Path(config_dir).absolute()}]"]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         return hydra_compose(config_name, overrides=overrides, return_hydra_config=True)
 
@@ -93,15 +98,18 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
 
     args, _ = get_args_parser().parse_known_args(argv)
     if args.help or args.hydra_help or args.info or args.cfg or args.shell_completion \
-            or args.config_path or args.config_dir or args.config_name or args.experimental_rerun:
+            or args.config_path or args.experimental_rerun:
         return None  # Hydra answers these itself
+    config_name = args.config_name or config_name
     first, bad = None, {}  # bad: message -> the jobs it holds for
     try:
         jobs = job_overrides(args.overrides, args.multirun)
         varying = [i for i in range(len(jobs[0])) if any(job[i] != jobs[0][i] for job in jobs)]
-        for overrides in jobs:
+        for num, overrides in enumerate(jobs):
             try:
-                cfg = compose(config_name, overrides)
+                # a sweep's job numbers, as Hydra's basic sweeper gives them: its directory resolves
+                cfg = compose(config_name, [*overrides, f"hydra.job.num={num}"] if args.multirun else overrides,
+                              args.config_dir)
                 check(without_hydra(cfg), cfg.hydra, args.multirun)
                 if not args.multirun:
                     writable_dir(Path(cfg.hydra.run.dir), "hydra.run.dir")

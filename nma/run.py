@@ -64,7 +64,7 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     return settings, raw["params"], path
 
 
-def check_run_dir(run_dir: Path, resume: str) -> None:
+def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> None:
     """One run per directory: a new run (trainer.resume=false) does not start in a directory that holds
     a run already (its checkpoints would mix with the new run's, its metrics and figures be replaced)."""
     from .errors import ConfigError
@@ -73,9 +73,9 @@ def check_run_dir(run_dir: Path, resume: str) -> None:
     held = [p.name for p in (run_dir / "checkpoints", run_dir / "metrics.json")
             if p.exists() and (p.is_file() or checkpoint.latest(p))]
     if resume == "false" and held:
-        raise ConfigError(f"hydra.run.dir={run_dir} holds a run already ({', '.join(held)}): continue it with "
+        raise ConfigError(f"{what}={run_dir} holds a run already ({', '.join(held)}): continue it with "
                           "trainer.resume=true, or start the new run in another directory (without "
-                          "hydra.run.dir each run gets a new one)")
+                          "hydra.run.dir or hydra.sweep.dir each run gets a new one)")
 
 
 def check_init_from(path: Path, s: TrainConfig) -> None:
@@ -230,14 +230,13 @@ def main() -> None:
         world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
         if settings.trainer.init_from:
             check_init_from(Path(settings.trainer.init_from), settings)
-        if not multirun:
-            run_dir = Path(hydra_cfg.run.dir)
-            check_run_dir(run_dir, settings.trainer.resume)
-            if settings.trainer.resume == "true":
-                # before Hydra records this run's config over the old one: does the checkpoint fit?
-                found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
-                if found:
-                    checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
+        # the job's directory (a sweep's: its subdirectory), before Hydra records its config there
+        run_dir = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+        check_run_dir(run_dir, settings.trainer.resume, "a sweep job's directory" if multirun else "hydra.run.dir")
+        if settings.trainer.resume == "true":  # does the checkpoint fit?
+            found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
+            if found:
+                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
 
     hydra_cfg = cli.preflight("config", check, sys.argv[1:], world.rank)
     if world.size > 1:

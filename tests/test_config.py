@@ -87,6 +87,32 @@ def test_every_job_of_a_sweep_is_checked_first(tmp_path, monkeypatch, capsys):
         ["a=1", "b=x", "c=3"], ["a=1", "b=x", "c=4"], ["a=2", "b=x", "c=3"], ["a=2", "b=x", "c=4"]]
 
 
+def test_a_sweep_job_never_starts_over_another(tmp_path, monkeypatch, capsys):
+    """A sweep's job directories (hydra.sweep.dir/<job number>) are checked like a single run's: a job
+    whose directory holds a run is refused before Hydra records anything there, and nothing is touched."""
+    sweep = tmp_path / "sweep"
+    old = fake_run(sweep / "1")
+    before = {p: p.read_bytes() for p in old.rglob("*") if p.is_file()}
+    argv = ["--multirun", "trainer.seed=0,1", "trainer.steps=1", f"hydra.sweep.dir={sweep}"]
+    code, err = call(run.main, argv, monkeypatch, capsys)
+    assert code == 2 and f"a sweep job's directory={old} holds a run already" in err, err
+    assert "(in 1 of 2 jobs, e.g. trainer.seed=1)" in err
+    assert {p: p.read_bytes() for p in old.rglob("*") if p.is_file()} == before and not (sweep / "0").exists()
+
+
+def test_config_dir_is_checked_up_front(tmp_path, monkeypatch, capsys):
+    """--config-dir adds configs; they are composed and checked before any work like conf/'s own."""
+    (tmp_path / "conf" / "trainer").mkdir(parents=True)
+    (tmp_path / "conf" / "trainer" / "broken.yaml").write_text("steps: -3\n")
+    argv = ["--config-dir", str(tmp_path / "conf"), "trainer=broken", f"hydra.run.dir={tmp_path / 'run'}"]
+    code, err = call(run.main, argv, monkeypatch, capsys)
+    assert code == 2 and "trainer.steps must be an integer in [1, 10000000], got -3" in err, err
+    assert not (tmp_path / "run").exists()
+    code, err = call(run.main, ["--config-dir", str(tmp_path / "none"), f"hydra.run.dir={tmp_path / 'run'}"],
+                     monkeypatch, capsys)
+    assert code == 2 and f"--config-dir {tmp_path / 'none'} is not a directory" in err, err
+
+
 def test_internal_errors_are_not_dressed_as_bad_input():
     """Only ConfigError means bad input; any other error keeps its type (and Hydra its traceback)."""
     with pytest.raises(KeyError):
