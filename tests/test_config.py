@@ -231,3 +231,13 @@ def test_a_solve_that_took_no_step_says_so_instead_of_a_zero_residual():
     info = NewtonInfo(*(np.asarray(v) for v in (INCREMENT_TOO_SMALL, 12, 0, 14, 0.0, 0.0, 1e-12, [0.0])))
     message = str(failure(info))
     assert "last residual" not in message and "no load increment beyond it could be taken" in message
+
+
+def test_commands_are_console_scripts():
+    """The commands are installed as console scripts beside `python -m nma.<command>`."""
+    from importlib.metadata import entry_points
+
+    scripts = {e.name: e.value for e in entry_points(group="console_scripts") if e.name.startswith("nma-")}
+    assert scripts == {"nma-run": "nma.run:main", "nma-simulate": "nma.simulate:main",
+                       "nma-evaluate": "nma.evaluate:main", "nma-export": "nma.export:main"}
+    assert all(callable(e.load()) for e in entry_points(group="console_scripts") if e.name in scripts)
