@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..geometry.bspline import basis_matrix
+from .barrier import ipc
 from .options import ContactSettings
 
 
@@ -126,13 +127,6 @@ def _d2_pairs(va, vb, xp=np):
     return _point_chord_d2(va[..., :, None, :], vb[..., None, :-1, :], vb[..., None, 1:, :], xp)
 
 
-def _barrier(s):
-    """b(s) = -(s - 1)^2 log s below 1, 0 above (C2 at s = 1); s > 0 is the caller's to keep."""
-    inside = s < 1.0
-    safe = jnp.where(inside & (s > 0), s, 1.0)
-    return jnp.where(inside, -(safe - 1.0) ** 2 * jnp.log(safe), 0.0)
-
-
 def stiffness(model: ContactModel, mu) -> jnp.ndarray:
     return model.settings.stiffness * mu * model.d_hat
 
@@ -169,15 +163,6 @@ def _faces(model: ContactModel, blocks):
 
 # -- energy, force, tangent blocks -----------------------------------------------------------------------
 
-def _barrier_derivatives(s):
-    """b, b', b'' at s (0 at and above 1); s > 0 is the caller's to keep."""
-    inside = s < 1.0
-    s = jnp.where(inside & (s > 0), s, 1.0)
-    log, q = jnp.log(s), s - 1.0
-    values = (-q * q * log, -2.0 * q * log - q * q / s, -2.0 * log - 4.0 * q / s + q * q / (s * s))
-    return [jnp.where(inside, v, 0.0) for v in values]
-
-
 _EYE = np.eye(2)
 
 
@@ -212,7 +197,7 @@ def _term_derivatives(z, w, inv_d2):
     d2 = jnp.where(inner, _line_d2(z), jnp.dot(r, r))
     g = jnp.where(inner, jax.grad(_line_d2)(z), g_end)
     H = jnp.where(inner, jax.hessian(_line_d2)(z), H_end)
-    b0, b1, b2 = _barrier_derivatives(d2 * inv_d2)
+    b0, b1, b2 = ipc(d2 * inv_d2)
     gs = g * inv_d2
     return w * b0, w * b1 * gs, w * (b2 * jnp.einsum("zi,yj->ziyj", gs, gs) + b1 * H * inv_d2)
 
@@ -229,7 +214,7 @@ def energy(model: ContactModel, weights, x, mu) -> jnp.ndarray:
         own, other = _faces(model, blocks)                                  # (b, 2) segments
         d2 = _d2_pairs(v[own], v[other], jnp)                               # (b, 2, k + 1, k)
         real = (blocks >= 0)[:, None, None, None]
-        e = jnp.sum(jnp.where(real, weights[own][..., None] * _barrier(d2 / model.d_hat ** 2), 0.0))
+        e = jnp.sum(jnp.where(real, weights[own][..., None] * ipc(d2 / model.d_hat ** 2)[0], 0.0))
         return acc[0] + e, acc[1] & jnp.all((d2 > 0) | ~real)
 
     e, apart = _over_near(model, _box_gaps(model, v) < model.d_hat, step, (jnp.zeros((), x.dtype), jnp.asarray(True)))
@@ -242,7 +227,7 @@ def _energy_everywhere(model: ContactModel, weights, x, mu) -> jnp.ndarray:
     A, B = model.pairs[:, 0], model.pairs[:, 1]
     d2 = jnp.stack([_d2_pairs(v[A], v[B], jnp), _d2_pairs(v[B], v[A], jnp)], axis=1)   # (Ec, 2, k + 1, k)
     w = jnp.stack([weights[A], weights[B]], axis=1)[..., None]
-    e = stiffness(model, mu) * jnp.sum(w * _barrier(d2 / model.d_hat ** 2))
+    e = stiffness(model, mu) * jnp.sum(w * ipc(d2 / model.d_hat ** 2)[0])
     return jnp.where(jnp.all(d2 > 0), e, jnp.inf)
 
 

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from ..geometry.discretise import Discretisation
 from . import contact
+from .barrier import ipc
 from .material import det2, lame, neo_hookean, piola, tangent
 
 
@@ -70,14 +71,8 @@ def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray,
 
 def _barrier(J, j_hat, kappa):
     """b(J), b'(J), b''(J) of the inversion barrier (0 for J >= j_hat; callers keep J > 0)."""
-    def b(J):
-        s = jnp.minimum(J / j_hat, 1.0)
-        return -kappa * (1.0 - s) ** 2 * jnp.log(jnp.where(s > 0, s, 1.0))
-
-    db = jax.grad(b)
-    flat = J.reshape(-1)
-    values = [jax.vmap(f)(flat).reshape(J.shape) for f in (b, db, jax.grad(db))]
-    return [jnp.where(J < j_hat, v, 0.0) for v in values]
+    b, db, ddb = ipc(J / j_hat)
+    return [kappa * b, kappa * db / j_hat, kappa * ddb / j_hat ** 2]
 
 
 def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
