@@ -1,0 +1,166 @@
+"""The documentation cannot rot: every ```python block of README.md and docs/*.md runs, and every
+relative link (and its #anchor) points at something that exists.
+
+A python block that is deliberately not runnable is marked by the comment `<!-- not run -->` on the
+line before its opening fence; exactly those are skipped.  Bash blocks are not run."""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+NOT_RUN = "<!-- not run -->"
+PYTHON = {"python", "py", "python3"}
+TIMEOUT_S = 120  # a guard against a hang; the blocks take seconds
+
+FENCE = re.compile(r"^(\s*)(`{3,}|~{3,})\s*([\w+-]*)")
+
+
+class Block(NamedTuple):
+    page: Path
+    line: int        # 1-based line of the opening fence
+    end: int         # 1-based line of the closing fence (the last line if unclosed)
+    lang: str
+    code: str
+    not_run: bool    # marked `<!-- not run -->` on the line before
+
+
+def blocks(page: Path) -> list[Block]:
+    """The fenced code blocks of a page (an unclosed fence runs to the end of the page, as in CommonMark)."""
+    lines = page.read_text(encoding="utf-8").splitlines()
+    found, i = [], 0
+    while i < len(lines):
+        m = FENCE.match(lines[i])
+        if not m:
+            i += 1
+            continue
+        indent, fence, lang = m.group(1), m.group(2), m.group(3).lower()
+        j, body = i + 1, []
+        while j < len(lines) and not re.match(rf"^\s*{re.escape(fence[0])}{{{len(fence)},}}\s*$", lines[j]):
+            body.append(lines[j][len(indent):] if lines[j].startswith(indent) else lines[j].lstrip())
+            j += 1
+        k = i - 1
+        while k >= 0 and not lines[k].strip():
+            k -= 1
+        marked = k >= 0 and lines[k].strip() == NOT_RUN
+        found.append(Block(page, i + 1, min(j + 1, len(lines)), lang, "\n".join(body) + "\n", marked))
+        i = j + 1
+    return found
+
+
+ALL_BLOCKS = [b for page in PAGES for b in blocks(page)]
+PYTHON_BLOCKS = [b for b in ALL_BLOCKS if b.lang in PYTHON]
+
+
+def block_id(b: Block) -> str:
+    return f"{b.page.relative_to(ROOT)}:{b.line}"
+
+
+def test_pages_exist():
+    assert (ROOT / "README.md").is_file()
+    assert len(PAGES) > 1, "docs/*.md: no pages"
+
+
+def test_there_are_python_blocks_to_run():
+    """The docs do show code (the library's example); the test below is not vacuous."""
+    assert any(not b.not_run for b in PYTHON_BLOCKS)
+
+
+def test_not_run_marks_only_python_blocks():
+    """A `<!-- not run -->` mark sits right before a python block: anything else is a stray mark that would
+    silently skip nothing (or, after an edit, the wrong block)."""
+    for page in PAGES:
+        lines = page.read_text(encoding="utf-8").splitlines()
+        marked_lines = {n + 1 for n, ln in enumerate(lines) if ln.strip() == NOT_RUN}
+        covered = {b.line for b in ALL_BLOCKS if b.page == page and b.not_run and b.lang in PYTHON}
+        for n in marked_lines:
+            following = next((m + 1 for m in range(n, len(lines)) if lines[m].strip()), None)
+            assert following in covered, (f"{page.relative_to(ROOT)}:{n}: {NOT_RUN} is not followed by a "
+                                          f"```python block")
+
+
+@pytest.mark.parametrize("block", PYTHON_BLOCKS, ids=block_id)
+def test_python_block_runs(block: Block):
+    if block.not_run:
+        pytest.skip(f"marked {NOT_RUN}")
+    env = dict(os.environ, MPLBACKEND="Agg")
+    try:
+        done = subprocess.run([sys.executable, "-c", block.code], cwd=ROOT, env=env, capture_output=True,
+                              text=True, timeout=TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{block_id(block)}: did not finish in {TIMEOUT_S} s")
+    assert done.returncode == 0, (f"{block_id(block)} failed (exit {done.returncode}):\n{block.code}\n"
+                                  f"--- stderr ---\n{done.stderr[-4000:]}")
+
+
+# --- links -------------------------------------------------------------------------------------------
+
+LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+REFERENCE = re.compile(r"^\s{0,3}\[[^\]]+\]:\s*<?(\S+?)>?(?:\s+.*)?$", re.M)
+CODE_SPAN = re.compile(r"(`+)(.+?)\1", re.S)
+HEADING = re.compile(r"^\s{0,3}(#{1,6})\s+(.*?)\s*#*\s*$")
+
+
+def prose(page: Path) -> str:
+    """The page without its fenced code blocks and code spans (where brackets are code, not links)."""
+    lines = page.read_text(encoding="utf-8").splitlines()
+    inside = {n for b in blocks(page) for n in range(b.line, b.end + 1)}
+    kept = "\n".join(ln for n, ln in enumerate(lines, 1) if n not in inside)
+    return CODE_SPAN.sub(" ", kept)
+
+
+def anchors(page: Path) -> set[str]:
+    """GitHub's anchors for the page's headings: the rendered text, lower case, without punctuation
+    (hyphens and underscores kept), spaces as hyphens; a repeated one gets -1, -2, ..."""
+    lines = page.read_text(encoding="utf-8").splitlines()
+    inside = {n for b in blocks(page) for n in range(b.line, b.end + 1)}
+    seen: dict[str, int] = {}
+    out = set()
+    for n, ln in enumerate(lines, 1):
+        m = HEADING.match(ln)
+        if n in inside or not m:
+            continue
+        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", m.group(2))  # a link's text
+        text = text.replace("`", "")
+        slug = re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
+        if slug in seen:
+            seen[slug] += 1
+            slug = f"{slug}-{seen[slug]}"
+        else:
+            seen[slug] = 0
+        out.add(slug)
+    return out
+
+
+def links(page: Path) -> list[str]:
+    text = prose(page)
+    return LINK.findall(text) + REFERENCE.findall(text)
+
+
+RELATIVE = [(page, target) for page in PAGES for target in links(page)
+            if not re.match(r"^[a-zA-Z][a-zA-Z0-9+.-]*:", target)]  # http:, https:, mailto: are not checked
+
+
+def test_docs_link_to_every_page():
+    """README.md's "Where to go next" links every docs page."""
+    linked = {(ROOT / t.split("#")[0]).resolve() for p, t in RELATIVE if p.name == "README.md"}
+    missing = [str(p.relative_to(ROOT)) for p in PAGES[1:] if p.resolve() not in linked]
+    assert not missing, f"README.md does not link {missing}"
+
+
+@pytest.mark.parametrize("page,target", RELATIVE,
+                         ids=[f"{p.relative_to(ROOT)}->{t}" for p, t in RELATIVE])
+def test_relative_link_resolves(page: Path, target: str):
+    path, _, fragment = target.partition("#")
+    where = (page.parent / path).resolve() if path else page
+    assert where.exists(), f"{page.relative_to(ROOT)}: {target} -> {where} does not exist"
+    if fragment and where.suffix == ".md":
+        assert fragment in anchors(where), (f"{page.relative_to(ROOT)}: {target}: no heading with anchor "
+                                            f"#{fragment} in {where.relative_to(ROOT)}")
