@@ -38,7 +38,7 @@ def trainer_for(scene: str, workers: int, init_from: str | None):
     from hydra import compose, initialize_config_dir
 
     from nma.config import CONF_DIR
-    from nma.run import make_trainer, validate
+    from nma.train.runs import make_trainer, validate
     from nma.schema import register
 
     register()

@@ -32,7 +32,7 @@ register()
 def validate(cfg: DictConfig) -> EvaluateConfig:
     from .fidelity import resolve
     from .registry import LINEAR_SOLVERS
-    from .run import load_run
+    from .train.runs import load_run
     from .solver import linear  # noqa: F401  (register backends)
 
     settings = build(EvaluateConfig, cfg)
@@ -44,7 +44,7 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
 def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
     """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`
     (with `contact` in place of the run's own where given)."""
-    from .run import fidelity_record, make_trainer
+    from .train.runs import fidelity_record, make_trainer
 
     s = dataclasses.replace(settings, fidelity=fidelity, solver=solver, contact=contact or settings.contact,
                             logger=dataclasses.replace(settings.logger, name="none"),
@@ -60,7 +60,7 @@ def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
 
 
 def evaluate(s: EvaluateConfig) -> dict:
-    from .run import load_run
+    from .train.runs import load_run
 
     run = Path(s.run)
     settings, _, checkpoint = load_run(run)

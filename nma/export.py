@@ -40,7 +40,7 @@ register()
 
 
 def validate(cfg: DictConfig) -> ExportConfig:
-    from .run import load_run
+    from .train.runs import load_run
 
     settings = build(ExportConfig, cfg)
     if settings.output and Path(settings.output).is_dir():
@@ -60,7 +60,7 @@ def trained_outline(run_dir) -> Outline:
     configure_jax()
     from .geometry.discretise import discretise
     from .geometry.scene import scene_from_config
-    from .run import load_run
+    from .train.runs import load_run
     from .schema import Fidelity
 
     settings, params, _ = load_run(run_dir)
@@ -163,7 +163,7 @@ def evaluation_states(run_dir) -> dict:
     """Does the design stay a physical object over its task's whole evaluation set?  The run's final
     evaluation (metrics.json) where it was made with the newest checkpoint, otherwise that evaluation
     solved again here (python -m nma.evaluate does the same at another fidelity)."""
-    from .run import load_run
+    from .train.runs import load_run
 
     run = Path(run_dir)
     settings, _, path = load_run(run)
@@ -201,7 +201,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     from .geometry.scene import scene_from_config
     from .geometry.validity import StateChecker
     from .mechanics.material import material
-    from .run import load_run
+    from .train.runs import load_run
     from .simulator import Simulator
 
     settings, params, _ = load_run(run_dir)

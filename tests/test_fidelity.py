@@ -68,7 +68,7 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     from nma.fidelity import choice_of
     from nma.geometry.discretise import discretise
     from nma.geometry.scene import scene_from_config
-    from nma.run import fidelity_record, fingerprint, validate
+    from nma.train.runs import fidelity_record, fingerprint, validate
     from test_platform import compose_cfg
 
     with caplog.at_level(logging.INFO, logger="nma.fidelity"):

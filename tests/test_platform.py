@@ -15,7 +15,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from nma import config
-from nma.run import validate
+from nma.schema import register
+from nma.train.runs import validate
 from nma.errors import ConfigError
 
 FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
@@ -23,6 +24,7 @@ FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trai
 
 
 def compose_cfg(*overrides):
+    register()  # the schemas in Hydra's ConfigStore, as every command does on import
     with initialize_config_dir(config_dir=str(config.CONF_DIR), version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides))
 

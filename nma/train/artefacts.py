@@ -307,3 +307,27 @@ def figure_curves(path: Path, task, history: list):
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def write_figures(figures: Path, trainer, evaluation, X_before, animation_frames: int) -> Path:
+    """The figures of a finished run into `figures/`: the design before and after, the evaluation deformed
+    (or, for a colour display, what it shows), the learning curves, the error map where the task has
+    one, the sweep animation, the pore shapes."""
+    sim, task = trainer.sim, trainer.task
+    geom = trainer.state["params"]["geom"]
+    figures.mkdir(exist_ok=True)
+    figure_designs(figures / "design.png", sim, X_before, sim.reference_points(geom))
+    if getattr(task, "display", None) is not None:  # a colour display: draw what it shows
+        figure_display(figures / "deformed.png", task, evaluation, geom)
+        figure_colour_map(figures / "colours.png", sim, task, geom)
+    else:
+        figure_deformed(figures / "deformed.png", sim, task, evaluation)
+    figure_curves(figures / "curves.png", task, trainer.history)
+    if task.coordinates(task.eval_set()) is not None or task.outline:
+        figure_errors(figures / "errors.png", task, evaluation)
+    if animation_frames:
+        sweep = trainer.evaluate(task.sweep(animation_frames))
+        animation_sweep(figures / "sweep.gif", sim, task, sweep, geom, task.sweep_fps)
+    if task.outline:
+        figure_shapes(figures / "shapes.png", task, evaluation)
+    return figures

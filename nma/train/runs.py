@@ -1,0 +1,136 @@
+"""A training run's directory and what builds it: the checked settings of a run (validate), a finished
+run's settings and newest checkpoint (load_run), the rules a new run's directory keeps (one run per
+directory; trainer.init_from a run of the same scene), the fingerprint a checkpoint records, and the
+trainer of checked settings (make_trainer).  The commands (nma.run, nma.evaluate, nma.export) call these."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from ..schema import TrainConfig, build
+
+
+def validate(cfg: DictConfig) -> TrainConfig:
+    """The composed config as checked settings, resolved (fidelity=auto: the measured setting it picks);
+    ConfigError names the field and its allowed range. Nothing is built: only the registries are
+    consulted for the component names."""
+    from .. import models, tasks  # noqa: F401  (register components)
+    from ..fidelity import resolve
+    from ..registry import LINEAR_SOLVERS, MODELS, TASKS
+    from ..solver import linear  # noqa: F401
+
+    settings = build(TrainConfig, cfg)
+    TASKS.get(settings.task.name)
+    MODELS.get(settings.model.name)
+    LINEAR_SOLVERS.get(settings.solver.linear)
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
+
+
+def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
+    """A training run directory's checked settings, its newest checkpointed parameters ({"net",
+    "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
+    from omegaconf import OmegaConf
+
+    from ..errors import ConfigError
+    from ..schema import TASK_SCHEMAS
+    from . import checkpoint
+
+    run = Path(run_dir)
+    saved = run / ".hydra" / "config.yaml"
+    if not saved.is_file():
+        raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
+    cfg = OmegaConf.load(saved)
+    name = OmegaConf.select(cfg, "task.name")
+    if name not in TASK_SCHEMAS:
+        raise ConfigError(f"run={run}: its config names task {name!r}, not one of {sorted(TASK_SCHEMAS)}")
+    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(TASK_SCHEMAS[name])}, cfg))
+    found = checkpoint.load_latest(run / "checkpoints")
+    if found is None:
+        raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
+    path, raw = found
+    return settings, raw["params"], path
+
+
+def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> None:
+    """One run per directory: a new run (trainer.resume=false) does not start in a directory that holds
+    a run already (its checkpoints would mix with the new run's, its metrics and figures be replaced)."""
+    from ..errors import ConfigError
+    from . import checkpoint
+
+    held = [p.name for p in (run_dir / "checkpoints", run_dir / "metrics.json")
+            if p.exists() and (p.is_file() or checkpoint.latest(p))]
+    if resume == "false" and held:
+        raise ConfigError(f"{what}={run_dir} holds a run already ({', '.join(held)}): continue it with "
+                          "trainer.resume=true, or start the new run in another directory (without "
+                          "hydra.run.dir or hydra.sweep.dir each run gets a new one)")
+
+
+def check_init_from(path: Path, s: TrainConfig) -> None:
+    """trainer.init_from names a run of the same scene with a checkpoint: a design carries over only to
+    the scene it was learned on."""
+    from omegaconf import OmegaConf
+
+    from ..errors import ConfigError
+    from . import checkpoint
+
+    if not path.is_dir():
+        raise ConfigError(f"trainer.init_from={path} is not a directory (a training run's directory)")
+    if checkpoint.latest(path / "checkpoints") is None:
+        raise ConfigError(f"trainer.init_from={path} holds no checkpoint (checkpoints/step_*.msgpack)")
+    saved = path / ".hydra" / "config.yaml"
+    scene = OmegaConf.select(OmegaConf.load(saved), "scene.name") if saved.is_file() else None
+    if scene is not None and scene != s.scene.name:
+        raise ConfigError(f"trainer.init_from={path} is a run on scene {scene}; this run's scene is "
+                          f"{s.scene.name}, and a design carries over only to the scene it was learned on")
+
+
+def fingerprint(s: TrainConfig) -> dict:
+    """The settings that shape the parameters, the optimiser state or the data: a checkpoint written
+    under other values must not be continued silently."""
+    asdict = dataclasses.asdict
+    trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
+    if s.optim.schedule != "constant":
+        trainer["steps"] = s.trainer.steps  # the schedule's length
+    return {"task": asdict(s.task), "scene": asdict(s.scene), "model": asdict(s.model),
+            "fidelity": asdict(s.fidelity), "material": asdict(s.material), "optim": asdict(s.optim),
+            "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
+
+
+def fidelity_record(disc) -> dict:
+    """The discretisation a run used, and with fidelity=auto which measured setting that was and why."""
+    from ..fidelity import choice_of
+
+    choice = choice_of(disc.fidelity, disc.spec.name)
+    return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
+            "dofs": disc.n_dofs, "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
+
+
+def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None, exact_init: bool = False):
+    """The simulator, task, network, logger and trainer of checked, resolved settings (JAX set up first);
+    with `exact_init` every parameter restored from trainer.init_from must fit (re-evaluating a run)."""
+    from ..runtime import configure_jax
+
+    configure_jax()
+    from ..geometry.discretise import discretise
+    from ..geometry.scene import scene_from_config
+    from ..mechanics.material import material
+    from ..registry import MODELS, TASKS
+    from ..simulator import Simulator
+    from ..solver.implicit import available_cores
+    from .logger import make_logger
+    from .mpi import World
+    from .trainer import Trainer
+
+    world = world or World()
+    # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
+    workers = s.solver.workers or max(1, available_cores() // world.local_size)
+    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings()), s.solver.linear, s.solver.newton(), workers)
+    task = TASKS.get(s.task.name)(s.task, sim)
+    hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
+    model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
+                                     out_bias=s.model.out_bias)
+    logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
+    return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
+                   logger, world, fingerprint(s), exact_init)
