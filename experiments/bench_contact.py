@@ -35,6 +35,7 @@ def bench_scene(scene: str, repeats: int) -> dict:
 
     from nma import config
     from nma.geometry.validity import StateChecker
+    from nma.mechanics.contact import smallest_gap
     from nma.mechanics.material import material
     from nma.simulator import Simulator
 
@@ -73,11 +74,7 @@ def bench_scene(scene: str, repeats: int) -> dict:
                 converged[mode] += 1
                 valid[mode] += checker.check(np.asarray(eq.u)).valid
                 if mode == "on":
-                    from nma.mechanics.contact import vertices, _d2_pairs
-
-                    v = np.asarray(vertices(model, jnp.asarray(X + np.asarray(eq.u))))
-                    a, b = v[model.pairs[:, 0]], v[model.pairs[:, 1]]
-                    touching += min(_d2_pairs(a, b).min(), _d2_pairs(b, a).min()) < model.d_hat ** 2
+                    touching += smallest_gap(model, X + np.asarray(eq.u), X) < model.d_hat
     out.update({"dofs": sims["on"].disc.n_dofs, "contact_blocks": model.n_blocks, "d_hat": model.d_hat,
                 "first_call_seconds": first, "seconds": {m: stats(v) for m, v in seconds.items()},
                 "median_ratio": float(np.median(seconds["on"]) / np.median(seconds["off"])),

@@ -9,11 +9,15 @@ on the squared distance d^2:
 
     E_c = kappa sum_v w_v sum_e b(d^2(v, e) / d_hat^2),   b(s) = -(s - 1)^2 log s  for s < 1, 0 above,
 
-w_v the vertex's reference arc length (trapezoid rule), kappa = stiffness * mu * d_hat (contact pressure
-2 stiffness mu d_hat / d at a gap d << d_hat).  b is C2 and exactly 0 beyond d_hat: while every pore is
-open wider than d_hat the model, its tangent and its adjoint are unchanged to the bit.  b -> inf as the
-gap closes, and Newton's step bound adds the time of impact of every vertex on every chord (continuous
-collision detection: the step never lets a vertex cross a chord), so no iterate interpenetrates.
+w_v the vertex's reference arc length (trapezoid rule), kappa = stiffness * mu * d_hat (two parallel walls
+at a gap d << d_hat press on each other with about 4 stiffness mu d_hat / d: each wall's vertices against
+the other's chords).  A vertex and a chord closer than EXCLUDED_ARC d_hat along their wall (in the
+reference) are one piece of wall, not two that can touch: their term is left out.  b is C2 and exactly 0
+beyond d_hat: while every pore is open wider than d_hat the model, its tangent and its adjoint are those
+without contact (to round-off: the Hessian's pattern, and so its factorisation's ordering, has the
+contact blocks).  b -> inf as the gap closes, and Newton's step bound adds the time of impact of every
+vertex on every chord (continuous collision detection: the step never lets a vertex cross a chord), so no
+iterate interpenetrates.
 
 Why a barrier between wall curves and not a third medium filling the pores (Bluhm, Sigmund and Poulios
 2021): a third medium stiffens every open pore by its regularised stiffness (the answers change by
@@ -23,7 +27,7 @@ separated by material, which must itself invert (det F -> 0, where the Neo-Hooke
 before they can meet.  Neighbouring segments are excluded (they share a vertex); a wall folding onto its
 own neighbour segment is a kink, which inverts the material at the wall first.
 
-Each pair of segments is one contact block of 6 control points (12 dofs), padded to the 9 points of a
+Each pair of segments is one contact block of 6 control points (12 dofs; 5 where they share one), padded to the 9 points of a
 Bezier element so that the Hessian's assembly treats it as one more element: the sparsity pattern is
 fixed once per scene (every non-neighbouring pair within each pore), and the blocks of pairs apart by
 more than d_hat are exactly zero.
@@ -32,6 +36,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -52,6 +57,8 @@ class ContactModel:
     segments: np.ndarray      # (Ns, 3) point index of the 3 control points of each wall segment
     vertex_basis: np.ndarray  # (Ns, k + 1, 3) weights of those points at the segment's vertices
     pairs: np.ndarray         # (Ec, 2) segments that may touch (same pore, not neighbours)
+    loop_start: np.ndarray    # (Ns,) the first segment of each segment's pore (segments run along each pore)
+    loop_end: np.ndarray      # (Ns,) one past the last segment of each segment's pore
     pores: int                # pores with a wall
 
     @property
@@ -67,13 +74,14 @@ class ContactModel:
 
 def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings) -> ContactModel | None:
     """The contact model of the pore loops (each (n_edges, m) point indices, chained; nma.geometry.outline)
-    at the reference control points `points`; None for a scene without pores."""
+    at the reference control points `points`; None for a scene without pores (or with pores too coarse to
+    have a pair of segments that are not neighbours)."""
     if not loops:
         return None
     m = loops[0].shape[1]
     spans, k = m - 2, settings.per_span
     s = np.arange(k + 1) / k
-    segments, basis, pairs, widths = [], [], [], []
+    segments, basis, pairs, widths, start, end = [], [], [], [], [], []
     for loop in loops:
         first = len(segments)
         for edge in loop:
@@ -81,25 +89,35 @@ def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings
                 segments.append(edge[j:j + 3])
                 basis.append(basis_matrix((j + s) / spans, m)[:, j:j + 3])
         n = len(segments) - first
+        start += [first] * n
+        end += [first + n] * n
         i, j = np.triu_indices(n, 2)
         keep = (j - i) != n - 1  # the loop closes: the last segment neighbours the first
         pairs.append(first + np.stack([i[keep], j[keep]], axis=1))
         wall = np.einsum("svc,scd->svd", np.asarray(basis[first:]), points[np.asarray(segments[first:])])
         widths.append(np.ptp(wall.reshape(-1, 2), axis=0).max())
+    pairs = np.concatenate(pairs)
+    if not len(pairs):
+        return None
     segments, basis = np.asarray(segments, np.int64), np.asarray(basis)
     d_hat = settings.distance * float(np.median(widths))
-    model = ContactModel(settings, d_hat, segments, basis, np.concatenate(pairs), len(loops))
-    gap = _reference_gap(model, points)
+    model = ContactModel(settings, d_hat, segments, basis, pairs, np.asarray(start), np.asarray(end), len(loops))
+    gap = smallest_gap(model, points, points)
     if gap <= d_hat:
-        raise ConfigError(f"contact.distance = {settings.distance:g} puts the contact distance at {d_hat:.3g}, but "
-                          f"the walls of a pore are {gap:.3g} apart at rest; lower contact.distance")
+        raise ConfigError(f"contact.distance = {settings.distance:g} puts the contact distance at {d_hat:.3g} "
+                          f"({settings.distance:g} of the median pore's extent), but two walls of a pore face each "
+                          f"other {gap:.3g} apart at rest; lower contact.distance")
     return model
 
 
-def _reference_gap(model: ContactModel, points: np.ndarray) -> float:
-    v = np.asarray(vertices(model, jnp.asarray(points)))
-    a, b = v[model.pairs[:, 0]], v[model.pairs[:, 1]]
-    return float(np.sqrt(min(_d2_pairs(a, b).min(), _d2_pairs(b, a).min())))
+def smallest_gap(model: ContactModel, x, X) -> float:
+    """The smallest distance between a wall vertex and a chord it faces at control points x, the walls'
+    arc lengths those of the reference X (the terms of the model; below d_hat the barrier acts)."""
+    walls = reference_walls(model, jnp.asarray(X))
+    own, other = _faces(model, jnp.arange(model.n_blocks))
+    v = vertices(model, jnp.asarray(x))
+    d2 = _d2_pairs(v[own], v[other], jnp)
+    return float(jnp.sqrt(jnp.min(jnp.where(_facing(model, walls, own, other), d2, jnp.inf))))
 
 
 def vertices(model: ContactModel, x: jnp.ndarray) -> jnp.ndarray:
@@ -107,11 +125,42 @@ def vertices(model: ContactModel, x: jnp.ndarray) -> jnp.ndarray:
     return jnp.einsum("svc,scd->svd", jnp.asarray(model.vertex_basis), x[model.segments])
 
 
-def vertex_weights(model: ContactModel, X: jnp.ndarray) -> jnp.ndarray:
-    """(Ns, k + 1) reference arc length of each vertex (trapezoid rule on the reference polyline)."""
+class Walls(NamedTuple):
+    """The pores' walls in the reference configuration (of the design being solved)."""
+    weights: jnp.ndarray    # (Ns, k + 1) arc length of each vertex (trapezoid rule on the polyline)
+    arcs: jnp.ndarray       # (Ns, k + 1) arc-length position of each vertex along its pore's wall
+    perimeter: jnp.ndarray  # (Ns,) the length of each segment's pore wall
+
+
+def reference_walls(model: ContactModel, X: jnp.ndarray) -> Walls:
+    """Arc lengths along the pores' walls at the reference control points X."""
     chord = jnp.linalg.norm(jnp.diff(vertices(model, X), axis=1), axis=-1)  # (Ns, k)
     pad = jnp.zeros_like(chord[:, :1])
-    return 0.5 * (jnp.concatenate([chord, pad], 1) + jnp.concatenate([pad, chord], 1))
+    weights = 0.5 * (jnp.concatenate([chord, pad], 1) + jnp.concatenate([pad, chord], 1))
+    total = jnp.concatenate([jnp.zeros(1, X.dtype), jnp.cumsum(chord.sum(axis=1))])  # along all segments
+    first = total[model.loop_start]
+    arcs = (total[:-1] - first)[:, None] + jnp.concatenate([pad, jnp.cumsum(chord, axis=1)], 1)
+    return Walls(weights, arcs, total[model.loop_end] - first)
+
+
+PROJECTION_SLACK = 1e-9  # a vertex meeting a chord within this fraction beyond its ends meets it (or its neighbour)
+EXCLUDED_ARC = 3.0  # terms of a vertex and a chord closer than this many d_hat along the wall are left out
+
+
+def _facing(model: ContactModel, walls: Walls, own, other) -> jnp.ndarray:
+    """(b, 2, k + 1, k) whether each term's vertex and chord face each other: further apart along their
+    wall than EXCLUDED_ARC * d_hat (in the reference).  Closer, they are one piece of wall: on a smooth wall
+    their distance is about their arc length, so at rest the barrier would act on a wall with nothing
+    touching (segments grow short at fine fidelity and small radii, while d_hat stays)."""
+    sv = walls.arcs[own][..., :, None]                                         # (b, 2, k + 1, 1)
+    P = walls.perimeter[own][..., None, None]
+
+    def along(c):  # the shorter way round the wall
+        gap = jnp.abs(sv - c)
+        return jnp.minimum(gap, P - gap)
+
+    ends = walls.arcs[other]
+    return jnp.minimum(along(ends[..., None, :-1]), along(ends[..., None, 1:])) > EXCLUDED_ARC * model.d_hat
 
 
 def _point_chord_d2(p, a, b, xp=jnp):
@@ -202,33 +251,37 @@ def _term_derivatives(z, w, inv_d2):
     return w * b0, w * b1 * gs, w * (b2 * jnp.einsum("zi,yj->ziyj", gs, gs) + b1 * H * inv_d2)
 
 
+def _blocks_energy(model: ContactModel, walls: Walls, v, blocks):
+    """The barrier (unit kappa) of the given blocks (-1: none) at wall vertices v, and whether every
+    vertex keeps a positive distance from every chord it faces."""
+    own, other = _faces(model, blocks)                                      # (b, 2) segments
+    d2 = _d2_pairs(v[own], v[other], jnp)                                   # (b, 2, k + 1, k)
+    acts = (blocks >= 0)[:, None, None, None] & _facing(model, walls, own, other)
+    e = jnp.sum(jnp.where(acts, walls.weights[own][..., None] * ipc(d2 / model.d_hat ** 2)[0], 0.0))
+    return e, jnp.all((d2 > 0) | ~acts)
+
+
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
-def energy(model: ContactModel, weights, x, mu) -> jnp.ndarray:
-    """The contact energy at deformed control points x (n_points, 2); +inf where a vertex has met a chord
-    it faces (the walls have interpenetrated).  Evaluated on the blocks whose boxes are within d_hat (what
-    the line search calls); differentiated (the residual, the adjoint's pullback) as one expression over
-    all blocks, which JAX differentiates twice cheaply."""
+def energy(model: ContactModel, walls: Walls, x, mu) -> jnp.ndarray:
+    """The contact energy at deformed control points x (n_points, 2); +inf where a vertex lies on a chord
+    it faces.  (A state whose walls have crossed has a finite energy: Newton never reaches one, because its
+    step bound stops every vertex before it meets a chord, time_of_impact.)  Evaluated on the blocks whose
+    boxes are within d_hat (what the line search calls); differentiated (the residual, the adjoint's
+    pullback) as one expression over all blocks, the same function, which JAX differentiates twice."""
     v = vertices(model, x)
 
     def step(acc, blocks):
-        own, other = _faces(model, blocks)                                  # (b, 2) segments
-        d2 = _d2_pairs(v[own], v[other], jnp)                               # (b, 2, k + 1, k)
-        real = (blocks >= 0)[:, None, None, None]
-        e = jnp.sum(jnp.where(real, weights[own][..., None] * ipc(d2 / model.d_hat ** 2)[0], 0.0))
-        return acc[0] + e, acc[1] & jnp.all((d2 > 0) | ~real)
+        e, apart = _blocks_energy(model, walls, v, blocks)
+        return acc[0] + e, acc[1] & apart
 
     e, apart = _over_near(model, _box_gaps(model, v) < model.d_hat, step, (jnp.zeros((), x.dtype), jnp.asarray(True)))
     return jnp.where(apart, stiffness(model, mu) * e, jnp.inf)
 
 
-def _energy_everywhere(model: ContactModel, weights, x, mu) -> jnp.ndarray:
+def _energy_everywhere(model: ContactModel, walls: Walls, x, mu) -> jnp.ndarray:
     """`energy` over every block at once (the same value)."""
-    v = vertices(model, x)
-    A, B = model.pairs[:, 0], model.pairs[:, 1]
-    d2 = jnp.stack([_d2_pairs(v[A], v[B], jnp), _d2_pairs(v[B], v[A], jnp)], axis=1)   # (Ec, 2, k + 1, k)
-    w = jnp.stack([weights[A], weights[B]], axis=1)[..., None]
-    e = stiffness(model, mu) * jnp.sum(w * ipc(d2 / model.d_hat ** 2)[0])
-    return jnp.where(jnp.all(d2 > 0), e, jnp.inf)
+    e, apart = _blocks_energy(model, walls, vertices(model, x), jnp.arange(model.n_blocks))
+    return jnp.where(apart, stiffness(model, mu) * e, jnp.inf)
 
 
 @energy.defjvp
@@ -236,7 +289,7 @@ def _energy_jvp(model, primals, tangents):
     return jax.jvp(partial(_energy_everywhere, model), primals, tangents)
 
 
-def force_and_blocks(model: ContactModel, weights, x, mu):
+def force_and_blocks(model: ContactModel, walls: Walls, x, mu):
     """Energy, nodal force (n_points, 2) and the (Ec, 18, 18) tangent blocks (dofs ordered as
     block_points, (a, i) -> 2 a + i) of the contact at deformed control points x.  Only blocks whose
     segments come within d_hat contribute, few while the pores are open: only they are differentiated."""
@@ -259,8 +312,8 @@ def force_and_blocks(model: ContactModel, weights, x, mu):
         rows = rows.at[:, 1].set(jnp.roll(rows[:, 1], 3, axis=-1))        # side 1: B's vertices, A's chords
         pts = seg[jnp.asarray(model.pairs)[jnp.maximum(blocks, 0)]].reshape(-1, 6)  # (b, 6)
         z = jnp.einsum("bsvezc,bcd->bsvezd", rows, x[pts])
-        w = jnp.where((blocks >= 0)[:, None, None], weights[own], 0.0)
-        w = jnp.broadcast_to(w[..., None], shape[:-1])
+        acts = (blocks >= 0)[:, None, None, None] & _facing(model, walls, own, other)
+        w = jnp.where(acts, walls.weights[own][..., None], 0.0)                  # (b, 2, k + 1, k)
         flat = lambda a: a.reshape((-1,) + a.shape[4:])  # noqa: E731  (terms in one axis)
         R, Z, W = flat(rows), flat(z), flat(w)
         e, gz, Hz = jax.vmap(_term_derivatives, (0, 0, None))(Z, W, inv_d2)   # (T,), (T, 3, 2), (T, 3, 2, 3, 2)
@@ -276,10 +329,11 @@ def force_and_blocks(model: ContactModel, weights, x, mu):
     return e, force, K[:n]
 
 
-def time_of_impact(model: ContactModel, x, dx, roots, horizon=jnp.inf) -> jnp.ndarray:
+def time_of_impact(model: ContactModel, walls: Walls, x, dx, roots, horizon=jnp.inf) -> jnp.ndarray:
     """The smallest t in (0, horizon] at which a vertex moving along x + t dx meets a chord it faces (inf
     if none): the vertex is on the chord's line where det[a - p, b - p], quadratic in t, vanishes (`roots`
-    gives its positive roots), and on the chord if its projection falls within it there.  Blocks whose
+    gives its positive roots), and on the chord if its projection falls within it there (to round-off: a
+    vertex heading for the joint of two chords must not slip between them).  Blocks whose
     boxes are further apart than horizon times their segments' largest motions cannot meet within the
     horizon: only the others are solved for."""
     v, dv = vertices(model, x), vertices(model, dx)
@@ -298,8 +352,9 @@ def time_of_impact(model: ContactModel, x, dx, roots, horizon=jnp.inf) -> jnp.nd
         pt, at_, bt = at(p, dp), at(a, da), at(b, db)
         chord = bt - at_
         proj = jnp.sum((pt - at_) * chord, -1) / jnp.maximum(jnp.sum(chord * chord, -1), 1e-300)
-        hit = (jnp.isfinite(t) & (proj >= 0.0) & (proj <= 1.0) & (t <= horizon)
-               & (blocks >= 0)[:, None, None, None, None])
+        acts = (blocks >= 0)[:, None, None, None] & _facing(model, walls, own, other)
+        hit = (jnp.isfinite(t) & (proj >= -PROJECTION_SLACK) & (proj <= 1.0 + PROJECTION_SLACK) & (t <= horizon)
+               & acts[..., None])
         return jnp.minimum(acc, jnp.min(jnp.where(hit, t, jnp.inf), initial=jnp.inf))
 
     return _over_near(model, near, step, jnp.asarray(jnp.inf, x.dtype))

@@ -35,7 +35,7 @@ class Quadrature(NamedTuple):
     check_grads: jnp.ndarray    # (P, S2, 16, 9, 2) dN/dX at the 4 x 4 check points
     check_weights: jnp.ndarray  # (P, S2, 16) a 16th of the element's area at each
     X: jnp.ndarray              # (n_points, 2) the reference control points (for contact)
-    contact_weights: jnp.ndarray  # (Ns, k + 1) reference arc length of each pore-wall vertex (contact)
+    walls: contact.Walls | None  # the pores' walls (contact)
 
 
 def _physical(dN: jnp.ndarray, Xe: jnp.ndarray, skip_degenerate: bool = False):
@@ -59,7 +59,7 @@ def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
         checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
     else:  # no check points: nothing to compute (or to differentiate in the adjoint)
         checks = (jnp.zeros(det.shape[:2] + (0, 9, 2), X.dtype), jnp.zeros(det.shape[:2] + (0,), X.dtype))
-    walls = contact.vertex_weights(disc.contact, X) if disc.contact else jnp.zeros((0, 0), X.dtype)
+    walls = contact.reference_walls(disc.contact, X) if disc.contact else None
     return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, *checks, X, walls)
 
 
@@ -91,7 +91,7 @@ def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: j
         energy = energy + jnp.sum(quad.check_weights * _barrier(jnp.where(Jc > 0, Jc, j_hat), j_hat, kappa)[0])
         valid = valid & jnp.all((Jc > 0) | (quad.check_weights == 0))
     if disc.contact:
-        energy = energy + contact.energy(disc.contact, quad.contact_weights, quad.X + u, mu)  # inf: walls met
+        energy = energy + contact.energy(disc.contact, quad.walls, quad.X + u, mu)  # inf: walls met
     return jnp.where(valid, energy, jnp.inf)
 
 
@@ -136,7 +136,7 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
     Ke = Ke.reshape(-1, 18, 18)
     if disc.contact:
-        ec, fc, Kc = contact.force_and_blocks(disc.contact, quad.contact_weights, quad.X + u, mu)
+        ec, fc, Kc = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu)
         energy, force, Ke = energy + ec, force + fc, jnp.concatenate([Ke, Kc])
     return energy, force, Ke
 
@@ -160,7 +160,7 @@ def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.nda
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
         bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
     if disc.contact:
-        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.X + u, du, det_roots, horizon))
+        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, det_roots, horizon))
     return bound
 
 

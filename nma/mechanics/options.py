@@ -8,6 +8,6 @@ from dataclasses import dataclass
 class ContactSettings:
     """The pores' self-contact (nma.mechanics.contact)."""
     distance: float = 0.02   # d_hat, the gap at which the barrier starts, as a fraction of the median
-    # pore's width in the scene's canonical design (radii mid-range; a constant while training moves them)
-    stiffness: float = 1.0   # kappa / (mu d_hat): contact pressure 2 stiffness mu d_hat / d at a gap d << d_hat
+    # pore's extent (its bounding box's larger side) in the scene's canonical design (radii mid-range; a constant while training moves them)
+    stiffness: float = 1.0   # kappa / (mu d_hat): two walls at a gap d << d_hat press with about 4 stiffness mu d_hat / d
     per_span: int = 3        # chords per Bezier segment of a pore wall
