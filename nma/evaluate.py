@@ -101,7 +101,7 @@ def hydra_main(cfg: DictConfig) -> None:
             from .geometry.validity import describe
 
             logging.getLogger("nma.evaluate").warning("at the %s fidelity: %s", which,
-                                                      describe(record, record["invalid_samples"]))
+                                                      describe(record, record["invalid_samples"], record["fidelity"]["contact"]))
     print(json.dumps(brief), flush=True)
 
 

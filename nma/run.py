@@ -63,7 +63,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
         from .geometry.validity import describe
 
         log.warning("%s. They are marked in figures/deformed.png and listed in metrics.json (invalid_samples).",
-                    describe(evaluation.record, evaluation.record["invalid_samples"]))
+                    describe(evaluation.record, evaluation.record["invalid_samples"], s.contact.enabled))
     return evaluation.record
 
 

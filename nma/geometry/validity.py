@@ -242,9 +242,11 @@ def summarise(records: list[Validity | None]) -> dict:
             "min_J": finite(r.min_J for r in done), "min_gap": finite(r.min_gap for r in done)}
 
 
-def describe(summary: dict, invalid: dict, limit: int = 3) -> str:
+def describe(summary: dict, invalid: dict, contact: bool = False, limit: int = 3) -> str:
     """A warning's words for the invalid states of an evaluation: how many, and the first few problems."""
     first = "; ".join(f"sample {i}: {', '.join(p)}" for i, p in list(invalid.items())[:limit])
+    why = ("its energy sees det F only at Gauss points, and contact leaves out a wall folding within 3 "
+           "contact distances of itself" if contact else
+           "the model has no contact (contact=on), and its energy sees det F only at Gauss points")
     return (f"{summary['invalid_states']} of {summary['checked_states']} evaluated states are not physical "
-            f"objects (the model has no contact, and its energy sees det F only at Gauss points): {first}"
-            + ("; ..." if len(invalid) > limit else ""))
+            f"objects ({why}): {first}" + ("; ..." if len(invalid) > limit else ""))
