@@ -16,7 +16,7 @@ from nma.geometry.discretise import discretise
 from nma.geometry.scene import scene_from_config
 from nma.geometry.validity import StateChecker
 from nma.mechanics import contact
-from nma.mechanics.energy import det_roots, energy_force_tangents, quadrature
+from nma.mechanics.energy import energy_force_tangents, quadrature
 from nma.mechanics.material import material
 from nma.mechanics.options import ContactSettings
 from nma.schema import ContactConfig, Fidelity, build
@@ -139,11 +139,11 @@ def test_time_of_impact_stops_at_the_first_touch(cell):
     model = sims[True].disc.contact
     du = jnp.asarray(sims[False].solve(params, jnp.array([CLOSED]), MAT).u)
     walls = contact.reference_walls(model, X)
-    t = float(contact.time_of_impact(model, walls, X, du, det_roots))
+    t = float(contact.time_of_impact(model, walls, X, du))
     assert 0 < t < 1
     assert contact.smallest_gap(model, X + (1 - 1e-6) * t * du, X) > 0
     assert contact.smallest_gap(model, X + t * du, X) < 1e-9 * model.d_hat
-    assert float(contact.time_of_impact(model, walls, X, du, det_roots, horizon=0.5 * t)) == np.inf
+    assert float(contact.time_of_impact(model, walls, X, du, horizon=0.5 * t)) == np.inf
 
 
 def test_settings_are_checked():

@@ -1,8 +1,5 @@
 """The documentation cannot rot: every ```python block of README.md and docs/*.md runs, and every
-relative link (and its #anchor) points at something that exists.
-
-A python block that is deliberately not runnable is marked by the comment `<!-- not run -->` on the
-line before its opening fence; exactly those are skipped.  Bash blocks are not run."""
+relative link (and its #anchor) points at something that exists.  Bash blocks are not run."""
 from __future__ import annotations
 
 import os
@@ -16,7 +13,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-NOT_RUN = "<!-- not run -->"
 PYTHON = {"python", "py", "python3"}
 TIMEOUT_S = 120  # a guard against a hang; the blocks take seconds
 
@@ -29,7 +25,6 @@ class Block(NamedTuple):
     end: int         # 1-based line of the closing fence (the last line if unclosed)
     lang: str
     code: str
-    not_run: bool    # marked `<!-- not run -->` on the line before
 
 
 def blocks(page: Path) -> list[Block]:
@@ -46,11 +41,7 @@ def blocks(page: Path) -> list[Block]:
         while j < len(lines) and not re.match(rf"^\s*{re.escape(fence[0])}{{{len(fence)},}}\s*$", lines[j]):
             body.append(lines[j][len(indent):] if lines[j].startswith(indent) else lines[j].lstrip())
             j += 1
-        k = i - 1
-        while k >= 0 and not lines[k].strip():
-            k -= 1
-        marked = k >= 0 and lines[k].strip() == NOT_RUN
-        found.append(Block(page, i + 1, min(j + 1, len(lines)), lang, "\n".join(body) + "\n", marked))
+        found.append(Block(page, i + 1, min(j + 1, len(lines)), lang, "\n".join(body) + "\n"))
         i = j + 1
     return found
 
@@ -70,26 +61,11 @@ def test_pages_exist():
 
 def test_there_are_python_blocks_to_run():
     """The docs do show code (the library's example); the test below is not vacuous."""
-    assert any(not b.not_run for b in PYTHON_BLOCKS)
-
-
-def test_not_run_marks_only_python_blocks():
-    """A `<!-- not run -->` mark sits right before a python block: anything else is a stray mark that would
-    silently skip nothing (or, after an edit, the wrong block)."""
-    for page in PAGES:
-        lines = page.read_text(encoding="utf-8").splitlines()
-        marked_lines = {n + 1 for n, ln in enumerate(lines) if ln.strip() == NOT_RUN}
-        covered = {b.line for b in ALL_BLOCKS if b.page == page and b.not_run and b.lang in PYTHON}
-        for n in marked_lines:
-            following = next((m + 1 for m in range(n, len(lines)) if lines[m].strip()), None)
-            assert following in covered, (f"{page.relative_to(ROOT)}:{n}: {NOT_RUN} is not followed by a "
-                                          f"```python block")
+    assert PYTHON_BLOCKS
 
 
 @pytest.mark.parametrize("block", PYTHON_BLOCKS, ids=block_id)
 def test_python_block_runs(block: Block):
-    if block.not_run:
-        pytest.skip(f"marked {NOT_RUN}")
     env = dict(os.environ, MPLBACKEND="Agg")
     try:
         done = subprocess.run([sys.executable, "-c", block.code], cwd=ROOT, env=env, capture_output=True,

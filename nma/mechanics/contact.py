@@ -45,6 +45,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry.bspline import basis_matrix
 from .barrier import ipc
+from .material import det_roots
 from .options import ContactSettings
 
 
@@ -59,11 +60,14 @@ class ContactModel:
     pairs: np.ndarray         # (Ec, 2) segments that may touch (same pore, not neighbours)
     loop_start: np.ndarray    # (Ns,) the first segment of each segment's pore (segments run along each pore)
     loop_end: np.ndarray      # (Ns,) one past the last segment of each segment's pore
-    pores: int                # pores with a wall
 
     @property
     def n_blocks(self) -> int:
         return len(self.pairs)
+
+    @property
+    def pores(self) -> int:
+        return len(np.unique(self.loop_start))
 
     @property
     def block_points(self) -> np.ndarray:
@@ -81,7 +85,7 @@ def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings
     m = loops[0].shape[1]
     spans, k = m - 2, settings.per_span
     s = np.arange(k + 1) / k
-    segments, basis, pairs, widths, start, end = [], [], [], [], [], []
+    segments, basis, pairs, start, end = [], [], [], [], []
     for loop in loops:
         first = len(segments)
         for edge in loop:
@@ -94,14 +98,14 @@ def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings
         i, j = np.triu_indices(n, 2)
         keep = (j - i) != n - 1  # the loop closes: the last segment neighbours the first
         pairs.append(first + np.stack([i[keep], j[keep]], axis=1))
-        wall = np.einsum("svc,scd->svd", np.asarray(basis[first:]), points[np.asarray(segments[first:])])
-        widths.append(np.ptp(wall.reshape(-1, 2), axis=0).max())
     pairs = np.concatenate(pairs)
     if not len(pairs):
         return None
-    segments, basis = np.asarray(segments, np.int64), np.asarray(basis)
-    d_hat = settings.distance * float(np.median(widths))
-    model = ContactModel(settings, d_hat, segments, basis, pairs, np.asarray(start), np.asarray(end), len(loops))
+    segments, basis, start = np.asarray(segments, np.int64), np.asarray(basis), np.asarray(start)
+    walls = np.einsum("svc,scd->svd", basis, points[segments])               # every wall vertex
+    extents = [np.ptp(walls[start == a].reshape(-1, 2), axis=0).max() for a in np.unique(start)]
+    d_hat = settings.distance * float(np.median(extents))
+    model = ContactModel(settings, d_hat, segments, basis, pairs, start, np.asarray(end))
     gap = smallest_gap(model, points, points)
     if gap <= d_hat:
         raise ConfigError(f"contact.distance = {settings.distance:g} puts the contact distance at {d_hat:.3g} "
@@ -329,10 +333,10 @@ def force_and_blocks(model: ContactModel, walls: Walls, x, mu):
     return e, force, K[:n]
 
 
-def time_of_impact(model: ContactModel, walls: Walls, x, dx, roots, horizon=jnp.inf) -> jnp.ndarray:
+def time_of_impact(model: ContactModel, walls: Walls, x, dx, horizon=jnp.inf) -> jnp.ndarray:
     """The smallest t in (0, horizon] at which a vertex moving along x + t dx meets a chord it faces (inf
-    if none): the vertex is on the chord's line where det[a - p, b - p], quadratic in t, vanishes (`roots`
-    gives its positive roots), and on the chord if its projection falls within it there (to round-off: a
+    if none): the vertex is on the chord's line where det[a - p, b - p], quadratic in t, vanishes
+    (material.det_roots), and on the chord if its projection falls within it there (to round-off: a
     vertex heading for the joint of two chords must not slip between them).  Blocks whose
     boxes are further apart than horizon times their segments' largest motions cannot meet within the
     horizon: only the others are solved for."""
@@ -346,7 +350,7 @@ def time_of_impact(model: ContactModel, walls: Walls, x, dx, roots, horizon=jnp.
         p, dp = v[own][:, :, :, None], dv[own][:, :, :, None]                 # (b, 2, k + 1, 1, 2)
         a, da = v[other][:, :, None, :-1], dv[other][:, :, None, :-1]         # (b, 2, 1, k, 2)
         b, db = v[other][:, :, None, 1:], dv[other][:, :, None, 1:]
-        t = roots(jnp.stack(jnp.broadcast_arrays(a - p, b - p), -1),
+        t = det_roots(jnp.stack(jnp.broadcast_arrays(a - p, b - p), -1),
                   jnp.stack(jnp.broadcast_arrays(da - dp, db - dp), -1))      # (b, 2, k + 1, k, 2)
         at = lambda z, dz: z[..., None, :] + jnp.where(jnp.isfinite(t), t, 0.0)[..., None] * dz[..., None, :]  # noqa: E731
         pt, at_, bt = at(p, dp), at(a, da), at(b, db)

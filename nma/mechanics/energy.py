@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from ..geometry.discretise import Discretisation
 from . import contact
 from .barrier import ipc
-from .material import det2, lame, neo_hookean, piola, tangent
+from .material import det2, det_roots, lame, neo_hookean, piola, tangent
 
 
 class Quadrature(NamedTuple):
@@ -160,28 +160,8 @@ def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.nda
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
         bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
     if disc.contact:
-        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, det_roots, horizon))
+        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, horizon))
     return bound
-
-
-def det_roots(F, dF):
-    """(..., 2) the positive roots t of det(F + t dF) = c0 + c1 t + c2 t^2 (2 x 2 matrices; inf where
-    there is none), computed without cancellation."""
-    c0 = det2(F)
-    c1 = F[..., 0, 0] * dF[..., 1, 1] + dF[..., 0, 0] * F[..., 1, 1] \
-        - F[..., 0, 1] * dF[..., 1, 0] - dF[..., 0, 1] * F[..., 1, 0]
-    c2 = det2(dF)
-    inf = jnp.inf
-    disc_ = c1 * c1 - 4.0 * c2 * c0
-    sq = jnp.sqrt(jnp.maximum(disc_, 0.0))
-    q = -0.5 * (c1 + jnp.where(c1 >= 0, sq, -sq))
-    safe_q = jnp.where(q == 0, 1.0, q)
-    small_c2 = jnp.abs(c2) <= 1e-14 * (jnp.abs(c1) + jnp.abs(c0))
-    r1 = jnp.where(small_c2, -c0 / jnp.where(c1 == 0, 1.0, c1), q / jnp.where(c2 == 0, 1.0, c2))
-    r2 = jnp.where(small_c2, inf, c0 / safe_q)
-    r1 = jnp.where((r1 > 0) & ((disc_ >= 0) | small_c2) & ~((c1 == 0) & small_c2), r1, inf)
-    r2 = jnp.where((r2 > 0) & (disc_ >= 0) & (q != 0), r2, inf)
-    return jnp.stack([r1, r2], -1)
 
 
 def _first_root(F, dF):

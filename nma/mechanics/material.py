@@ -58,3 +58,23 @@ def tangent(F, mu, kappa):
     return (mu * jnp.einsum("ik,jl->ijkl", eye, eye)
             + (mu - kappa * logJ) * jnp.einsum("...jk,...li->...ijkl", Fi, Fi)
             + kappa * jnp.einsum("...ji,...lk->...ijkl", Fi, Fi))
+
+
+def det_roots(F, dF):
+    """(..., 2) the positive roots t of det(F + t dF) = c0 + c1 t + c2 t^2 (2 x 2 matrices; inf where
+    there is none), computed without cancellation."""
+    c0 = det2(F)
+    c1 = F[..., 0, 0] * dF[..., 1, 1] + dF[..., 0, 0] * F[..., 1, 1] \
+        - F[..., 0, 1] * dF[..., 1, 0] - dF[..., 0, 1] * F[..., 1, 0]
+    c2 = det2(dF)
+    inf = jnp.inf
+    disc_ = c1 * c1 - 4.0 * c2 * c0
+    sq = jnp.sqrt(jnp.maximum(disc_, 0.0))
+    q = -0.5 * (c1 + jnp.where(c1 >= 0, sq, -sq))
+    safe_q = jnp.where(q == 0, 1.0, q)
+    small_c2 = jnp.abs(c2) <= 1e-14 * (jnp.abs(c1) + jnp.abs(c0))
+    r1 = jnp.where(small_c2, -c0 / jnp.where(c1 == 0, 1.0, c1), q / jnp.where(c2 == 0, 1.0, c2))
+    r2 = jnp.where(small_c2, inf, c0 / safe_q)
+    r1 = jnp.where((r1 > 0) & ((disc_ >= 0) | small_c2) & ~((c1 == 0) & small_c2), r1, inf)
+    r2 = jnp.where((r2 > 0) & (disc_ >= 0) & (q != 0), r2, inf)
+    return jnp.stack([r1, r2], -1)
