@@ -3,6 +3,7 @@
     python experiments/stability_map.py                      # every scene -> outputs/studies/stability/
     python experiments/stability_map.py --scenes translation --quick
     python experiments/stability_map.py --contact --out outputs/studies/stability_contact
+    python experiments/stability_map.py --formulation mixed --nus 0.499 --out outputs/studies/stability_mixed
 
 Per scene, every combination of
   material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
@@ -30,6 +31,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from nma.mechanics.options import FORMULATIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
@@ -71,7 +74,8 @@ def designs(sim, rng) -> dict[str, dict]:
     return out
 
 
-def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False) -> dict:
+def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
+              formulation: str = "displacement", nus: list[float] = NUS) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -83,10 +87,10 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
 
     rng = np.random.default_rng(seed)
     sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
-                                {"escape_saddles": escape_saddles}, {"enabled": contact})
+                                {"escape_saddles": escape_saddles}, {"enabled": contact}, formulation)
     d_max = config.load("task", scene)["d_max"]
     solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
-    nus = [NUS[0], NUS[-1]] if quick else NUS
+    nus = [nus[0], nus[-1]] if quick else nus
     geoms = designs(sim, rng)
     if quick:
         geoms = dict(list(geoms.items())[:2])
@@ -127,7 +131,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
             "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else ""),
-            "contact": contact,
+            "contact": contact, "formulation": formulation,
             "records": records}
 
 
@@ -168,7 +172,9 @@ def summarise(result: dict, out: Path) -> None:
 
     s = result["summary"]
     lines = [f"# Stability map: {result['scene']} ({result['dofs']} dofs, d_max {result['d_max']}, E {result['E']}, "
-             f"paper fidelity, {result['solver']}{', contact' if result.get('contact') else ''})", "",
+             f"paper fidelity, {result['solver']}{', contact' if result.get('contact') else ''}"
+             f"{', formulation ' + result['formulation'] if result.get('formulation', 'displacement') != 'displacement' else ''})",
+             "",
              f"{s['converged']} of {s['solves']} solves converged; {s['nonfinite']} returned non-finite values; "
              f"median time {s['median_converged_seconds']:.2f} s converged"
              + (f", {s['median_failed_seconds']:.2f} s failed (at most {s['failed_over_converged_same_nu']:.1f}x the "
@@ -218,6 +224,9 @@ def main():
                     help="solve with solver.escape_saddles (write to a separate --out to compare)")
     ap.add_argument("--contact", action="store_true",
                     help="solve with the pores' self-contact, contact=on (write to a separate --out to compare)")
+    ap.add_argument("--formulation", default="displacement", choices=FORMULATIONS,
+                    help="material.formulation (write to a separate --out to compare)")
+    ap.add_argument("--nus", nargs="+", type=float, default=NUS, help="Poisson's ratios to map")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -229,7 +238,8 @@ def main():
     configure_jax()
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
-        result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact)
+        result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
+                           nus=args.nus)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "

@@ -205,7 +205,8 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     from .simulator import Simulator
 
     settings, params, _ = load_run(run_dir)
-    sim = Simulator(discretise(scene_from_config(settings.scene), settings.fidelity, settings.contact.settings()), settings.solver.linear,
+    sim = Simulator(discretise(scene_from_config(settings.scene), settings.fidelity, settings.contact.settings(),
+                               settings.material.formulation), settings.solver.linear,
                     settings.solver.newton(), settings.solver.workers)
     geom = _geometry(sim.disc, params, run_dir)
     X = np.asarray(sim.reference_points(geom))

@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Dict, List, Optional, get_args, get_origin, ge
 from omegaconf import MISSING
 
 from .errors import ConfigError
-from .mechanics.options import ContactSettings
+from .mechanics.options import FORMULATIONS, ContactSettings
 from .solver.options import NewtonOptions
 
 
@@ -145,6 +145,8 @@ class MaterialConfig(Schema):
     prefix: ClassVar[str] = "material"
     E: float = bounded(0.07, "(0, inf)")
     nu: float = bounded(0.3, "(-1, 0.5)", doc="0.5 is incompressible, which a displacement model cannot represent")
+    formulation: str = choice("displacement", FORMULATIONS, doc="mixed: the volume term at each element's mean "
+                              "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy)")
 
 
 @dataclass

@@ -59,11 +59,12 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     spec = scene_from_config(s.scene)
     mat = material(s.material.E, s.material.nu)
     t0 = time.perf_counter()
-    sim = Simulator(discretise(spec, s.fidelity, s.contact.settings()), s.solver.linear, s.solver.newton(), s.solver.workers)
+    sim = Simulator(discretise(spec, s.fidelity, s.contact.settings(), s.material.formulation), s.solver.linear,
+                    s.solver.newton(), s.solver.workers)
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
-              "material": {"E": s.material.E, "nu": s.material.nu}}
+              "material": {"E": s.material.E, "nu": s.material.nu, "formulation": s.material.formulation}}
     params = sim.init_params()
     t0 = time.perf_counter()
     eq = sim.solve(params, d, mat, throw=False)

@@ -45,12 +45,14 @@ class Simulator:
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
-                    solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None) -> "Simulator":
+                    solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
+                    formulation: str = "displacement") -> "Simulator":
         from .fidelity import resolve
 
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
-        return cls(discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene), contact.settings()),
-                   solver.linear, solver.newton(), solver.workers)
+        disc = discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene), contact.settings(),
+                          formulation)
+        return cls(disc, solver.linear, solver.newton(), solver.workers)
 
     @property
     def n_actuations(self) -> int:

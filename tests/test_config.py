@@ -18,6 +18,7 @@ BAD_RUN = [
     ("trainer.steps=1.5", "trainer.steps must be an integer, got '1.5'"),
     ("fidelity.ctrl_per_patch=five", "fidelity.ctrl_per_patch must be an integer, got 'five'"),
     ("material.E=abc", "material.E must be a finite number, got 'abc'"),
+    ("material.formulation=fbar", "material.formulation must be one of ['displacement', 'mixed'], got 'fbar'"),
     ("+solver.foo=1", "solver.foo is not a known setting"),
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
     ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
@@ -241,3 +242,15 @@ def test_commands_are_console_scripts():
     assert scripts == {"nma-run": "nma.run:main", "nma-simulate": "nma.simulate:main",
                        "nma-evaluate": "nma.evaluate:main", "nma-export": "nma.export:main"}
     assert all(callable(e.load()) for e in entry_points(group="console_scripts") if e.name in scripts)
+
+
+def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
+    """Runs from before material.formulation existed resume: the default is left out of the fingerprint
+    (as contact is when off), another formulation is in it, so its checkpoints are never mixed up."""
+    from nma.train.runs import fingerprint, validate
+    from test_platform import compose_cfg
+
+    default = fingerprint(validate(compose_cfg("task=translation", "logger=none")))
+    mixed = fingerprint(validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed")))
+    assert default["material"] == {"E": 0.07, "nu": 0.3}
+    assert mixed["material"]["formulation"] == "mixed" and "contact" not in default

@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
                       refinement_operator)
 from ..errors import ConfigError
+from ..mechanics.options import FORMULATIONS
 from ..schema import Fidelity
 from .design import make_design
 from .scene import PatchSceneSpec, SceneSpec
@@ -42,6 +43,7 @@ class Discretisation:
     tracked: dict = field(default_factory=dict)  # name -> (point indices (m*m,), basis weights (m*m,))
     group_points: dict = field(default_factory=dict)  # group name -> point indices
     contact: object = None  # nma.mechanics.contact.ContactModel: the pores' self-contact; None: no contact
+    formulation: str = "displacement"  # the strain energy's treatment of volume change (nma.mechanics.energy)
 
     @property
     def n_patches(self) -> int:
@@ -153,10 +155,14 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
     return -1, np.zeros(2)
 
 
-def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity(), contact=None) -> Discretisation:
+def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity(), contact=None,
+               formulation: str = "displacement") -> Discretisation:
     """The analysis model of a scene at a concrete `fidelity` (its control points and Gauss points per
     patch; fidelity=auto is resolved by the command, nma.fidelity.resolve, before it gets here), with the
-    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given."""
+    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the strain
+    energy's `formulation` (one of nma.mechanics.options.FORMULATIONS)."""
+    if formulation not in FORMULATIONS:
+        raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
@@ -243,7 +249,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
         representative=representative, elem_points=elem_points, basis_values=values, basis_grads=grads,
         quad_weights=weights, check_grads=check_grads, check_weights=check_weights, dirichlet_dofs=dirichlet,
         actuation_matrix=A, free_dofs=free,
-        external_force=f_ext, tracked=tracked, group_points=group_points)
+        external_force=f_ext, tracked=tracked, group_points=group_points, formulation=formulation)
     if contact is None:
         return disc
     from ..mechanics.contact import build

@@ -13,6 +13,18 @@ element (corners included: where nma.geometry.validity samples it) and a barrier
 (C2 at J_hat, infinite at J = 0: the barrier of incremental potential contact, Li et al. 2020, on J)
 weighted by a 16th of the element's area joins the energy, and Newton's step bound keeps det F > 0 at
 the check points too.  Where det F >= J_hat at every check point, nothing changes.
+
+Formulations (`material.formulation`, stored in Discretisation.formulation):
+- `displacement`: W(F) at every Gauss point.
+- `mixed`: the volumetric term kappa/2 (log J)^2 is evaluated at the element's mean dilatation
+      theta_e = (1 / A_e) integral_e J dA   (A_e the element's reference area),
+  so the energy is  sum_q w mu/2 (I1 - 2 - 2 log J) + sum_e A_e kappa/2 (log theta_e)^2.  This is the
+  three-field Hu-Washizu functional with pressure and dilatation constant on each Bezier element,
+  both condensed element by element (the mean-dilatation method, Nagtegaal, Parks & Rice 1974;
+  Simo, Taylor & Pister 1985): one volume constraint per element instead of one per Gauss point, so
+  a nearly incompressible material (nu -> 0.5) does not lock.  theta_e involves only the element's 9
+  points, so the tangent keeps the element blocks and the sparse pattern of `displacement`; the
+  shear term keeps its -mu log J (a compressible Neo-Hookean of bulk modulus ~mu, which cannot lock).
 """
 from __future__ import annotations
 
@@ -75,16 +87,40 @@ def _barrier(J, j_hat, kappa):
     return [kappa * b, kappa * db / j_hat, kappa * ddb / j_hat ** 2]
 
 
+def _mean_dilatation(quad: Quadrature, J: jnp.ndarray):
+    """Each element's reference area A_e (P, S2) and mean dilatation theta_e = integral J / A_e."""
+    area = jnp.sum(quad.weights, axis=-1)
+    return area, jnp.sum(quad.weights * J, axis=-1) / area
+
+
+def _det_derivatives(F: jnp.ndarray, G: jnp.ndarray):
+    """Derivatives of J = det F(u) at points with basis gradients G (..., 9, 2): dJ/du_ai = cof(F)_ij G_aj
+    (..., 9, 2), and d2J/du_ai du_bk = cross_ab eps_ik with cross_ab = G_a x G_b (..., 9, 9) in 2D."""
+    cof = jnp.stack([jnp.stack([F[..., 1, 1], -F[..., 1, 0]], -1),
+                     jnp.stack([-F[..., 0, 1], F[..., 0, 0]], -1)], -2)          # dJ/dF
+    dJ = jnp.einsum("...ij,...aj->...ai", cof, G)
+    cross = G[..., :, None, 0] * G[..., None, :, 1] - G[..., :, None, 1] * G[..., None, :, 0]
+    return dJ, cross
+
+
+EPS = jnp.array([[0.0, 1.0], [-1.0, 0.0]])  # the 2D permutation symbol
+
+
 def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
     """Integral of W over the reference domain (and the inversion barrier, and the contact barrier);
     +inf if any Gauss point, or with the barrier any check point, is inverted (J <= 0), or with contact a
     pore's walls have met."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
+    mixed = disc.formulation == "mixed"
     J = det2(F)
+    valid = jnp.all(J > 0)
     safe = jnp.where(J[..., None, None] > 0, F, jnp.eye(2))
-    W = jnp.vectorize(lambda f: neo_hookean(f, mu, kappa), signature="(2,2)->()")(safe)
-    energy, valid = jnp.sum(quad.weights * W), jnp.all(J > 0)
+    W = jnp.vectorize(lambda f: neo_hookean(f, mu, 0.0 if mixed else kappa), signature="(2,2)->()")(safe)
+    energy = jnp.sum(quad.weights * W)
+    if mixed:
+        area, theta = _mean_dilatation(quad, det2(safe))
+        energy = energy + jnp.sum(area * 0.5 * kappa * jnp.log(theta) ** 2)
     j_hat = disc.fidelity.inversion_barrier
     if j_hat > 0:
         Jc = det2(deformation_gradient(disc, quad, u, at_checks=True))
@@ -104,15 +140,27 @@ def _barrier_terms(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, kappa
     J = det2(F)
     b, db, ddb = _barrier(jnp.where(J > 0, J, j_hat), j_hat, kappa)
     w = quad.check_weights
-    cof = jnp.stack([jnp.stack([F[..., 1, 1], -F[..., 1, 0]], -1),
-                     jnp.stack([-F[..., 0, 1], F[..., 0, 0]], -1)], -2)          # dJ/dF
-    dJ = jnp.einsum("psqij,psqaj->psqai", cof, G)                                # (P, S2, C, 9, 2)
-    cross = G[..., :, None, 0] * G[..., None, :, 1] - G[..., :, None, 1] * G[..., None, :, 0]  # (.., 9, 9)
-    eps = jnp.array([[0.0, 1.0], [-1.0, 0.0]])
+    dJ, cross = _det_derivatives(F, G)                                           # (P, S2, C, 9, 2), (.., 9, 9)
     fe = jnp.einsum("psq,psqai->psai", w * db, dJ)
     Ke = (jnp.einsum("psq,psqai,psqbk->psaibk", w * ddb, dJ, dJ)
-          + jnp.einsum("psq,psqab,ik->psaibk", w * db, cross, eps))
+          + jnp.einsum("psq,psqab,ik->psaibk", w * db, cross, EPS))
     return jnp.sum(w * b), fe, Ke
+
+
+def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
+    """Energy, element forces and element tangents of sum_e A_e U(theta_e), U = kappa/2 (log theta)^2
+    (the `mixed` formulation): f = A U' dtheta, K = A U'' dtheta dtheta + A U' d2theta, where
+    dtheta = integral dJ / A and d2theta = integral d2J / A over the element."""
+    w = quad.weights
+    area, theta = _mean_dilatation(quad, det2(F))
+    dJ, cross = _det_derivatives(F, quad.grads)
+    dtheta = jnp.einsum("psq,psqai->psai", w, dJ) / area[..., None, None]
+    log = jnp.log(theta)
+    dU, ddU = kappa * log / theta, kappa * (1.0 - log) / theta ** 2
+    fe = (area * dU)[..., None, None] * dtheta
+    Ke = (jnp.einsum("ps,psai,psbk->psaibk", area * ddU, dtheta, dtheta)
+          + jnp.einsum("ps,psqab,ik->psaibk", dU, w[..., None, None] * cross, EPS))
+    return jnp.sum(area * 0.5 * kappa * log ** 2), fe, Ke
 
 
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
@@ -121,15 +169,20 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     points of each); tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
     F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
+    mixed = disc.formulation == "mixed"
+    k_point = 0.0 if mixed else kappa  # the volumetric term at the Gauss points, or per element below
     flat = F.reshape(-1, 2, 2)
-    W = jax.vmap(neo_hookean, in_axes=(0, None, None))(flat, mu, kappa).reshape(quad.weights.shape)
-    Pk = piola(F, mu, kappa)
-    C = tangent(F, mu, kappa)
+    W = jax.vmap(neo_hookean, in_axes=(0, None, None))(flat, mu, k_point).reshape(quad.weights.shape)
+    Pk = piola(F, mu, k_point)
+    C = tangent(F, mu, k_point)
     wG = quad.weights[..., None, None] * quad.grads                    # (P, S2, Q, 9, 2)
     fe = jnp.einsum("psqij,psqaj->psai", Pk, wG)
     H = jnp.einsum("psqaj,psqijkl->psqaikl", wG, C)
     Ke = jnp.einsum("psqaikl,psqbl->psaibk", H, quad.grads)
     energy = jnp.sum(quad.weights * W)
+    if mixed:
+        ev, fv, Kv = _volumetric_terms(quad, F, kappa)
+        energy, fe, Ke = energy + ev, fe + fv, Ke + Kv
     if disc.fidelity.inversion_barrier > 0:
         eb, fb, Kb = _barrier_terms(disc, quad, u, kappa)
         energy, fe, Ke = energy + eb, fe + fb, Ke + Kb

@@ -3,6 +3,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# how the strain energy treats volume change (nma.mechanics.energy): at every Gauss point, or through each
+# element's mean dilatation (locking-free as nu -> 0.5)
+FORMULATIONS = ("displacement", "mixed")
+
 
 @dataclass(frozen=True)
 class ContactSettings:

@@ -42,7 +42,7 @@ from .options import NewtonOptions
 RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
 FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearly converged...
 FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this factor of the tolerance
-NEARLY_INCOMPRESSIBLE = 0.495  # nu from which volumetric locking, not the load path, sets Newton's pace
+NEARLY_INCOMPRESSIBLE = 0.495  # nu from which the volume constraint, not the load path, sets Newton's pace
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
                ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
@@ -368,8 +368,8 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
         msg += f"last residual {float(info.residual):.3e} (tolerance {float(info.tolerance):.3e})"
     if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
         msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
-                f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): a displacement-only discretisation locks there "
-                f"and Newton needs several times the usual iterations; raise solver.max_iters (the stability "
-                f"map's failures at nu = 0.499 converge within 500) or lower nu")
+                f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): Newton needs several times the usual iterations "
+                f"there, with either material.formulation; raise solver.max_iters (the stability map's failures "
+                f"at nu = 0.499 converge within 500) or lower nu")
     return SolverError(msg, info)
 

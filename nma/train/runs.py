@@ -93,8 +93,11 @@ def fingerprint(s: TrainConfig) -> dict:
     trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
     if s.optim.schedule != "constant":
         trainer["steps"] = s.trainer.steps  # the schedule's length
+    material = asdict(s.material)
+    if material["formulation"] == "displacement":
+        del material["formulation"]  # the default: runs from before the option resume
     return {"task": asdict(s.task), "scene": asdict(s.scene), "model": asdict(s.model),
-            "fidelity": asdict(s.fidelity), "material": asdict(s.material), "optim": asdict(s.optim),
+            "fidelity": asdict(s.fidelity), "material": material, "optim": asdict(s.optim),
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
 
 
@@ -126,7 +129,8 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     world = world or World()
     # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
     workers = s.solver.workers or max(1, available_cores() // world.local_size)
-    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings()), s.solver.linear, s.solver.newton(), workers)
+    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings(), s.material.formulation),
+                    s.solver.linear, s.solver.newton(), workers)
     task = TASKS.get(s.task.name)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
