@@ -46,6 +46,8 @@ BAD_SIMULATE = [
     ("actuation=[1.0]", "actuation must have 2 entries for scene translation, got 1: [1.0]"),
     ("actuation=[1.0,nan]", "actuation must be finite numbers"),
     ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
+    ("scene.groups.0.direction=[0,0]", "scene.groups.direction of group left must not be [0, 0]"),
+    ("scene.pinned=[[0,0]] scene.groups=[]", "nothing stops it rotating about (0, 0)"),
     ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
     ("scene.corner_box=2.5", "scene.corner_box must be < half the smallest cell (2.5), got 2.5"),
 ]
@@ -68,7 +70,7 @@ def test_training_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys,
 
 @pytest.mark.parametrize("override, message", BAD_SIMULATE)
 def test_simulate_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys, override, message):
-    code, err = call(simulate.main, [override, f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    code, err = call(simulate.main, [*override.split(" "), f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
     assert not (tmp_path / "run").exists()
 

@@ -32,7 +32,7 @@ def test_scene_holds_only_what_it_needs():
 
 
 def test_empty_and_solid_cells():
-    cfg = {"name": "mini", "cells": ["PS", ".P"], "pinned": [[10, 0]]}
+    cfg = {"name": "mini", "cells": ["PS", ".P"], "pinned": [[5, 0], [10, 0]]}
     disc = discretise(scene_from_config(cfg))
     assert disc.n_patches == 4 + 1 + 4  # two porous cells, one solid, one empty
 
@@ -57,6 +57,62 @@ def test_bad_scene_config_names_the_field(bad, message):
     cfg = {"name": "bad", "cells": ["PP"], "pinned": [[0, 0]], **bad}
     with pytest.raises(ValueError, match=message):
         scene_from_config(cfg)
+
+
+PRESS = {"name": "press", "segment": [[0, 2], [0, 8]], "actuation": 0, "direction": [1, 0]}
+
+
+@pytest.mark.parametrize("scene, message", [
+    # a floating body: the stiffness is singular (one pin leaves a rotation, a sliding support a translation)
+    ({"cells": ["PP"], "pinned": [[0, 0]]}, r"scene.pinned .* free to move .* nothing stops it rotating about \(0, 0\)"),
+    ({"cells": ["PP"]}, r"nothing stops it moving along \(1, 0\) or moving along \(0, 1\) or rotating"),
+    ({"cells": ["PP"], "supports": [{"segment": [[0, 0], [10, 0]], "kind": "sliding"}]},
+     r"nothing stops it moving along \(1, 0\);"),
+    # an actuated group inside the material, off the grid lines, beyond the cells
+    ({"cells": ["PPP"], "pinned": [[0, 0], [5, 0]],
+      "groups": [{**PRESS, "segment": [[5, 0], [5, 5]]}]},
+     r"scene.groups of group press \[\[5, 0\], \[5, 5\]\] must lie on the material's outer boundary; "
+     r"between 0 and 5 it has material on both sides"),
+    ({"cells": ["PPP"], "pinned": [[0, 0], [5, 0]], "groups": [{**PRESS, "segment": [[7, 3], [7, 3]]}]},
+     "it runs along no cell boundary"),
+    ({"cells": ["PP"], "supports": [{"segment": [[0, 0], [20, 0]]}]}, r"scene.supports\[0\] .* reaches beyond the cells"),
+    ({"cells": ["P.", "P."], "pinned": [[0, 0], [5, 0]], "groups": [{**PRESS, "segment": [[10, 0], [10, 5]]}]},
+     "between 0 and 5 it has no material on either side"),
+    # a direction of (0, 0); two groups meeting with different motions; a support under a group
+    ({"cells": ["PP"], "pinned": [[0, 0], [5, 0]], "groups": [{**PRESS, "direction": [0, 0]}]},
+     r"scene.groups.direction of group press must not be \[0, 0\]"),
+    ({"cells": ["PP", "PP"], "groups": [PRESS, {**PRESS, "name": "other", "segment": [[0, 8], [0, 10]], "actuation": 1}]},
+     "scene.groups: group press and group other touch but prescribe different motions"),
+    ({"cells": ["PP", "PP"], "groups": [PRESS], "supports": [{"segment": [[0, 0], [0, 2]]}]},
+     r"group press and scene.supports\[0\] touch"),
+    # a cell grid in several pieces (cells touching at a corner only are apart)
+    ({"cells": ["P.", ".P"], "pinned": [[0, 0], [5, 0]]},
+     r"scene.cells must be one piece .* \[\(2, 2\)\], counted from the top left"),
+    ({"cells": ["P", "."], "supports": [{"segment": [[0, 0], [5, 5]]}]}, "horizontal or vertical segment"),
+])
+def test_physically_wrong_scenes_are_refused(scene, message):
+    """Well formed but physically wrong: refused when the scene is built, before any work."""
+    with pytest.raises(ValueError, match=message):
+        scene_from_config({"name": "wrong", **scene})
+
+
+def test_supports_hold_a_body_without_pins(simulator):
+    """A 2 x 1 strip clamped along its left edge and sliding along its bottom, pulled at its right edge
+    (which meets the sliding bottom at (10, 0): x moved, y held by both, no contradiction): the clamped
+    points do not move, the sliding ones only along the bottom, and the pull stretches it."""
+    from nma.mechanics.material import material
+    from nma.simulator import Simulator
+
+    cfg = {"name": "strip", "cells": ["PP"], "groups": [{**PRESS, "segment": [[10, 0], [10, 5]]}],
+           "supports": [{"segment": [[0, 0], [0, 5]], "kind": "clamped"},
+                        {"segment": [[5, 0], [10, 0]], "kind": "sliding"}]}
+    sim = Simulator(discretise(scene_from_config(cfg), Fidelity(5, 3)), "superlu")
+    X = np.asarray(sim.reference_points(sim.init_params()))
+    u = np.asarray(sim.solve(sim.init_params(), jnp.array([0.5]), material(0.07, 0.3)).u)
+    left, bottom = np.abs(X[:, 0]) < 1e-9, (np.abs(X[:, 1]) < 1e-9) & (X[:, 0] > 5 - 1e-9)
+    assert np.all(u[left] == 0.0) and np.all(u[bottom, 1] == 0.0)
+    assert np.max(np.abs(u[bottom & (X[:, 0] < 10 - 1e-9), 0])) > 1e-3  # free to slide
+    assert np.all(u[np.abs(X[:, 0] - 10) < 1e-9, 0] == 0.5)
 
 
 def test_fidelity_validation():

@@ -193,7 +193,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     _, _, check_grads, check_weights = check_tables(m)
     elem_points = patch_points[:, local]  # (P, S2, 9)
 
-    # Dirichlet groups, pinned / clamped points
+    # Dirichlet groups, pinned points, supports (clamped or sliding segments)
     n_act = spec.n_actuations
     rows: dict[int, np.ndarray] = {}
     group_points = {}
@@ -210,20 +210,21 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
                 row = np.zeros(n_act)
                 row[g.actuation] = g.direction[comp]
                 rows[dof] = row
-    fixed = []
+    fixed = []  # (point, component) held at 0
     if isinstance(spec, SceneSpec):
         tree = cKDTree(points)
         for pin in spec.pinned:
             dist, pnt = tree.query(pin)
             if dist > tol:
                 raise ConfigError(f"scene {spec.name}: pinned point {pin} is not a control point")
-            fixed.append(pnt)
+            fixed += [(pnt, 0), (pnt, 1)]
+        for sup in spec.supports:
+            fixed += [(pnt, c) for pnt in np.flatnonzero(_on_segment(points, sup.segment, tol)) for c in sup.components]
     else:
         for seg in spec.clamped:
-            fixed.extend(np.flatnonzero(_on_segment(points, seg, tol)).tolist())
-    for pnt in fixed:
-        for comp in range(2):
-            rows[2 * pnt + comp] = np.zeros(n_act)  # pinned wins over a group it touches
+            fixed += [(pnt, c) for pnt in np.flatnonzero(_on_segment(points, seg, tol)) for c in (0, 1)]
+    for pnt, comp in fixed:
+        rows[2 * pnt + comp] = np.zeros(n_act)  # pinned wins over a group it touches
     dirichlet = np.array(sorted(rows), dtype=np.int64)
     A = np.array([rows[d] for d in dirichlet]).reshape(len(dirichlet), n_act)
     free = np.setdiff1d(np.arange(2 * n_points), dirichlet)

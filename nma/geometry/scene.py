@@ -1,6 +1,6 @@
 """Declarative scenes: what a structure is, as data.
 
-A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned and tracked points, the
+A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned points, supports, tracked points, the
 movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema.py),
 so a bad scene fails before any work starts.  A `PatchSceneSpec` is a general multi-patch
 geometry given by its design nets (Cook's membrane is one patch).
@@ -27,6 +27,14 @@ class Group:
 
 
 @dataclass(frozen=True)
+class Support:
+    """Control points on a straight boundary segment held still in the given displacement components
+    ((0, 1): clamped; one of them: sliding along the segment)."""
+    segment: tuple[tuple[float, float], tuple[float, float]]
+    components: tuple[int, ...]
+
+
+@dataclass(frozen=True)
 class Traction:
     """A dead load per unit reference length on a straight boundary segment (used by Cook's membrane)."""
     segment: tuple[tuple[float, float], tuple[float, float]]
@@ -49,6 +57,7 @@ class SceneSpec:
     central_pore: tuple[tuple[int, int], ...]  # ring of grid nodes (i, j), counter-clockwise
     central_radii_init: float
     colours: bool
+    supports: tuple[Support, ...] = ()
     # built by scene_from_config from a SceneConfig, whose schema holds the defaults and checks
 
     @property
@@ -99,7 +108,8 @@ def scene_from_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneSpec:
         radii_init=c.radii_init, radii_bounds=pair(c.radii_bounds), corner_box=c.corner_box,
         locked_nodes=tuple((int(i), int(j)) for i, j in c.locked_nodes),
         central_pore=tuple((int(i), int(j)) for i, j in c.central_pore),
-        central_radii_init=c.central_radii_init, colours=c.colours)
+        central_radii_init=c.central_radii_init, colours=c.colours,
+        supports=tuple(Support((pair(t.segment[0]), pair(t.segment[1])), t.fixed_components()) for t in c.supports))
 
 
 def bilinear_net(corners: Sequence[Sequence[float]], n: int = 5) -> np.ndarray:
