@@ -1,6 +1,6 @@
 """Where the configs live, and plain (non-Hydra) loading of one config group option.
 
-`load("scene", "translation")` is the option's YAML merged onto its schema (nma/schema.py) and
+`load("scene", "translation")` is the option's YAML merged onto its schema (nma/schema/) and
 checked, as a plain dict: what Hydra would compose for that group, without Hydra.
 """
 from __future__ import annotations
@@ -11,6 +11,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from . import schema
+from .errors import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 GROUP_SCHEMAS = {"scene": schema.SceneConfig, "fidelity": schema.Fidelity, "solver": schema.SolverConfig,
@@ -25,7 +26,7 @@ def options(group: str) -> list[str]:
 def load(group: str, name: str) -> dict:
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.exists():
-        raise schema.ConfigError(f"{group}={name!r} is unknown; choose one of {options(group)}")
+        raise ConfigError(f"{group}={name!r} is unknown; choose one of {options(group)}")
     body = yaml.safe_load(path.read_text()) or {}
     body.pop("defaults", None)
     if group == "task":

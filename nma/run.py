@@ -1,6 +1,6 @@
 """Train one experiment: python -m nma.run [task=rotation_double] [trainer.steps=200] [logger=none]
 
-The whole config is checked against the schema (nma/schema.py) before any work; exit codes as in
+The whole config is checked against the schema (nma/schema/) before any work; exit codes as in
 nma/cli.py.  Under `mpiexec -n N` every rank runs this; rank 0 picks the run directory before Hydra
 starts and broadcasts it, and only rank 0 writes (config, log, checkpoints, fields, figures,
 metrics, wandb).

@@ -1,7 +1,7 @@
 """Declarative scenes: what a structure is, as data.
 
 A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned points, supports, tracked points, the
-movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema.py),
+movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema/scene.py),
 so a bad scene fails before any work starts.  A `PatchSceneSpec` is a general multi-patch
 geometry given by its design nets (Cook's membrane is one patch).
 """

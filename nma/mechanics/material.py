@@ -11,7 +11,7 @@ from ..schema import MaterialConfig
 
 
 def material(E: float, nu: float) -> jnp.ndarray:
-    """[E, nu] as a float64 array, checked against the schema's ranges (nma/schema.py)."""
+    """[E, nu] as a float64 array, checked against the schema's ranges (nma/schema/physics.py)."""
     MaterialConfig(float(E), float(nu))
     return jnp.array([E, nu], dtype=jnp.float64)
 

@@ -1,0 +1,108 @@
+"""The commands' top-level configs: each groups the schemas a command reads."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, List, Optional
+
+from omegaconf import MISSING
+
+from ..errors import ConfigError
+from .fields import Schema, bounded
+from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
+from .scene import SceneConfig
+from .tasks import TASK_SCHEMAS, TaskConfig
+from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
+
+
+@dataclass
+class TrainConfig:
+    """`python -m nma.run`: every group of a training run."""
+    task: Any = MISSING                    # a TaskConfig subclass, chosen by the task group
+    scene: SceneConfig = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    material: MaterialConfig = field(default_factory=MaterialConfig)
+
+    def __post_init__(self):
+        if not isinstance(self.task, TaskConfig):
+            raise ConfigError(f"task must be one of {sorted(TASK_SCHEMAS)}")
+        if self.task.name != self.scene.name:
+            raise ConfigError(f"scene={self.scene.name} does not fit task={self.task.name}; "
+                              f"each task runs on its scene of the same name")
+
+
+@dataclass
+class OutputConfig(Schema):
+    prefix: ClassVar[str] = "output"
+    samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the fields and figure")
+    figure: bool = True
+
+
+@dataclass
+class SimulateConfig:
+    """`python -m nma.simulate`: one static solve."""
+    scene: SceneConfig = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    material: MaterialConfig = field(default_factory=MaterialConfig)
+    actuation: Optional[List[float]] = None   # one value per actuation of the scene; null means all zero
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+    def __post_init__(self):
+        if self.actuation is None:
+            return
+        if not all(math.isfinite(a) for a in self.actuation):
+            raise ConfigError(f"actuation must be finite numbers, got {self.actuation}")
+        if len(self.actuation) != self.scene.n_actuations:
+            raise ConfigError(f"actuation must have {self.scene.n_actuations} entries for scene "
+                              f"{self.scene.name}, got {len(self.actuation)}: {self.actuation}")
+
+
+@dataclass
+class ExportConfig(Schema):
+    """`python -m nma.export run=<run dir>`: a trained run's geometry as a file to make it from."""
+    run: str = MISSING                      # a training run directory (its .hydra/config.yaml and checkpoints)
+    format: Optional[str] = field(default=None, metadata={"doc": "svg, dxf or stl; null: output's extension, else svg"})
+    scale: float = bounded(1.0, "(0, inf)", doc="millimetres per length unit of the scene")
+    thickness: float = bounded(10.0, "(0, inf)", doc="STL: extrusion height in millimetres")
+    samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
+                                                "(STL, the fabrication report)")
+    output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
+    states: bool = True                     # report whether every deformed state of the task's evaluation set is physical
+    load_cases: bool = False                # translation: the paper's Fig. 5 load cases, deformed over the part
+    load_fraction: float = bounded(0.5, "(0, 1]", doc="load_cases: the actuation as a fraction of the task's d_max")
+
+    FORMATS: ClassVar[tuple[str, ...]] = ("svg", "dxf", "stl")
+
+    def check(self):
+        given = self.format
+        if given is not None and given not in self.FORMATS:
+            self.fail("format", f"must be one of {list(self.FORMATS)}", given)
+        if self.output is not None:
+            suffix = self.output.rpartition(".")[2].lower() if "." in self.output.rpartition("/")[2] else ""
+            if suffix in self.FORMATS and given not in (None, suffix):
+                self.fail("format", f"is {given} but output={self.output} names a .{suffix} file; give one of them, "
+                                    "or both agreeing")
+            if given is None and suffix not in self.FORMATS:
+                self.fail("output", f"needs format= (one of {list(self.FORMATS)}): its extension names none of them",
+                          self.output)
+            self.format = given or suffix
+        else:
+            self.format = given or "svg"
+
+
+@dataclass
+class EvaluateConfig:
+    """`python -m nma.evaluate run=<run dir> fidelity=<preset>`: a trained run re-evaluated at another
+    discretisation (and solver), side by side with its training fidelity."""
+    run: str = MISSING
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    contact: Optional[ContactConfig] = None  # contact=on|off: evaluate with or without it; null: as the run trained

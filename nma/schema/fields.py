@@ -1,0 +1,121 @@
+"""Field machinery of the config schema: a field's allowed range or choices beside its default
+(`bounded`, `choice`), and `Schema`, the base that checks every field on construction."""
+from __future__ import annotations
+
+import math
+from dataclasses import MISSING as DC_MISSING
+from dataclasses import field, fields
+from typing import Any, ClassVar, Dict, List, get_args, get_origin, get_type_hints
+
+from ..errors import ConfigError
+
+
+def _parse_range(spec: str) -> tuple[float, float, bool, bool]:
+    lo, hi = (float(s) for s in spec[1:-1].split(","))
+    return lo, hi, spec[0] == "(", spec[-1] == ")"
+
+
+def bounded(default: Any = DC_MISSING, spec: str = "(-inf, inf)", *, factory=None, doc: str = ""):
+    """A number (or a list of numbers, each) in the interval `spec`, e.g. "(0, 1]" or "[1, inf)"."""
+    _parse_range(spec)
+    meta = {"range": spec, "doc": doc}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def choice(default: str, options: tuple[str, ...], doc: str = ""):
+    return field(default=default, metadata={"choices": tuple(options), "doc": doc})
+
+
+def _in_range(x: float, spec: str) -> bool:
+    lo, hi, lo_open, hi_open = _parse_range(spec)
+    if not math.isfinite(x):
+        return False
+    return (x > lo if lo_open else x >= lo) and (x < hi if hi_open else x <= hi)
+
+
+def _kind(tp) -> str:
+    return {int: "an integer", float: "a finite number", bool: "true or false", str: "a string"}.get(tp, str(tp))
+
+
+def _check_type(path: str, value: Any, tp) -> None:
+    origin = get_origin(tp)
+    if origin is None and tp in (int, float, bool, str):
+        ok = (isinstance(value, bool) if tp is bool else
+              isinstance(value, int) and not isinstance(value, bool) if tp is int else
+              isinstance(value, (int, float)) and not isinstance(value, bool) if tp is float else
+              isinstance(value, str))
+        if not ok:
+            raise ConfigError(f"{path} must be {_kind(tp)}, got {value!r}")
+    elif origin in (list, List):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{path} must be a list, got {value!r}")
+        (item,) = get_args(tp)
+        for i, v in enumerate(value):
+            _check_type(f"{path}[{i}]", v, item)
+    elif origin in (dict, Dict):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path} must be a mapping, got {value!r}")
+        _, item = get_args(tp)
+        for k, v in value.items():
+            _check_type(f"{path}.{k}", v, item)
+    elif origin is not None and type(None) in get_args(tp):  # Optional[X]
+        if value is not None:
+            _check_type(path, value, [a for a in get_args(tp) if a is not type(None)][0])
+
+
+def _points(path: str, value: Any, kind: type) -> None:
+    """A list of pairs of numbers (kind int: grid node indices)."""
+    for i, p in enumerate(value):
+        if not isinstance(p, (list, tuple)) or len(p) != 2:
+            raise ConfigError(f"{path}[{i}] must be a pair {'[i, j]' if kind is int else '[x, y]'}, got {p!r}")
+        for v in p:
+            _check_type(f"{path}[{i}]", v, kind)
+            if not math.isfinite(v):
+                raise ConfigError(f"{path}[{i}] must be finite, got {p!r}")
+
+
+def _flat_numbers(value):
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _flat_numbers(v)
+    elif value is not None:
+        yield value
+
+
+class Schema:
+    """Base of every config dataclass: type and range checks of each field, then `check()`."""
+    prefix: ClassVar[str] = ""
+
+    def __post_init__(self):
+        hints = get_type_hints(type(self))
+        for f in fields(self):
+            value = getattr(self, f.name)
+            path = f"{self.prefix}.{f.name}" if self.prefix else f.name
+            if isinstance(value, Schema):
+                continue  # checked on its own construction
+            if isinstance(value, (list, tuple)) and value and isinstance(value[0], Schema):
+                continue
+            if hints.get(f.name) is float and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+                setattr(self, f.name, value)
+            _check_type(path, value, hints.get(f.name, Any))
+            if "range" in f.metadata:
+                spec = f.metadata["range"]
+                for x in _flat_numbers(value):
+                    if not _in_range(float(x), spec):
+                        what = _kind(int if hints.get(f.name) is int else float)
+                        if isinstance(value, (list, tuple)):
+                            what = "a list of numbers, each"
+                        raise ConfigError(f"{path} must be {what} in {spec}, got {value!r}")
+            if "choices" in f.metadata and value not in f.metadata["choices"]:
+                raise ConfigError(f"{path} must be one of {list(f.metadata['choices'])}, got {value!r}")
+        self.check()
+
+    def check(self) -> None:
+        """Rules that join several fields (override in a subclass)."""
+
+    def fail(self, name: str, message: str, value: Any = DC_MISSING):
+        got = "" if value is DC_MISSING else f", got {value!r}"
+        raise ConfigError(f"{self.prefix + '.' if self.prefix else ''}{name} {message}{got}")

@@ -1,0 +1,95 @@
+"""The mechanical model's settings: material, discretisation (fidelity), contact, solver."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import ClassVar, Optional
+
+from ..mechanics.options import FORMULATIONS, ContactSettings
+from ..solver.options import NewtonOptions
+from .fields import Schema, bounded, choice
+
+
+@dataclass
+class MaterialConfig(Schema):
+    """Neo-Hookean material: Young's modulus and Poisson's ratio (the paper: E = 0.07, nu = 0.3)."""
+    prefix: ClassVar[str] = "material"
+    E: float = bounded(0.07, "(0, inf)")
+    nu: float = bounded(0.3, "(-1, 0.5)", doc="0.5 is incompressible, which a displacement model cannot represent")
+    formulation: str = choice("displacement", FORMULATIONS, doc="mixed: the volume term at each element's mean "
+                              "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy)")
+
+
+@dataclass
+class Fidelity(Schema):
+    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
+    prefix: ClassVar[str] = "fidelity"
+    ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
+    quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
+    tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
+                                         "error allowed against the 14 x 5 reference; the scene's measured front "
+                                         "then sets the two above")
+    inversion_barrier: float = bounded(0.0, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
+                                       "every element, corners included, where the Gauss points do not see, and "
+                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
+
+    def check(self):
+        if (self.ctrl_per_patch - 2) % 3:
+            self.fail("ctrl_per_patch", "must be 3k + 2 (5, 8, 11, ...: one knot per design span)",
+                      self.ctrl_per_patch)
+
+
+_CONTACT = ContactSettings()  # the contact model's defaults
+
+
+@dataclass
+class ContactConfig(Schema):
+    """The pores' self-contact (nma.mechanics.contact): a barrier between each pore's walls, so that a
+    closing pore's walls touch instead of passing through each other; nothing changes while they are
+    further apart than `distance`."""
+    prefix: ClassVar[str] = "contact"
+    enabled: bool = False
+    distance: float = bounded(_CONTACT.distance, "(0, 0.25]", doc="gap at which the barrier starts, as a fraction "
+                                                                  "of the median pore's width")
+    stiffness: float = bounded(_CONTACT.stiffness, "(0, 1000]", doc="barrier stiffness / (shear modulus x distance)")
+    per_span: int = bounded(_CONTACT.per_span, "[1, 16]", doc="chords per knot span of a pore wall")
+
+    def settings(self) -> Optional[ContactSettings]:
+        """The model's own options, or None with contact off."""
+        if not self.enabled:
+            return None
+        return ContactSettings(**{f.name: getattr(self, f.name) for f in fields(ContactSettings)})
+
+
+_NEWTON = NewtonOptions()  # the solver's defaults; the config declares their allowed ranges
+
+
+@dataclass
+class SolverConfig(Schema):
+    """Newton with adaptive load steps (nma.solver.newton) and the linear solver under it."""
+    prefix: ClassVar[str] = "solver"
+    rtol: float = bounded(_NEWTON.rtol, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
+    atol: float = bounded(_NEWTON.atol, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
+    max_iters: int = bounded(_NEWTON.max_iters, "[1, 100000]")
+    max_step_iters: int = bounded(_NEWTON.max_step_iters, "[1, 100000]",
+                                  doc="corrector iterations before a load step fails (up to 5 more while its "
+                                      "residual is within 1000x the tolerance)")
+    initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]")
+    min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]")
+    grow: float = bounded(_NEWTON.grow, "[1, 100]")
+    step_fraction: float = bounded(_NEWTON.step_fraction, "(0, 1]",
+                                   doc="a step may go this fraction of the way to J = 0")
+    armijo: float = bounded(_NEWTON.armijo, "(0, 0.5]")
+    max_backtracks: int = bounded(_NEWTON.max_backtracks, "[1, 1000]")
+    damped_step: float = bounded(_NEWTON.damped_step, "(0, 1]",
+                                 doc="a corrector step shorter than this fraction of the Newton step is heavily damped")
+    max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
+                                    doc="heavily damped corrector steps in a row that cut the load step at once "
+                                        "(Newton's model does not hold there)")
+    escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
+        "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
+    linear: str = "auto"   # a linear backend registered in nma.solver.linear (auto, pardiso, superlu, dense)
+    workers: int = bounded(0, "[0, 1024]", doc="threads solving a batch's samples at once; 0 = one per core")
+
+    def newton(self) -> NewtonOptions:
+        """Newton's own settings, handed to the solver."""
+        return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})

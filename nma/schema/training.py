@@ -1,0 +1,70 @@
+"""Training: the encoder, the optimiser, the trainer's schedule and checkpoints, the logger."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, List, Optional
+
+from .fields import Schema, bounded, choice
+
+
+@dataclass
+class ModelConfig(Schema):
+    """Encoder: MLP with ReLU hidden layers, output d_max * tanh (authors' code: no last bias)."""
+    prefix: ClassVar[str] = "model"
+    name: str = "mlp"         # an encoder registered in nma.models
+    hidden: Optional[List[int]] = bounded(None, "[1, 100000]", doc="null: the task's widths (task.hidden)")
+    out_bias: bool = False
+
+
+@dataclass
+class LrScale(Schema):
+    """Learning rate of each geometry group as a multiple of the network's; 0 freezes the group."""
+    prefix: ClassVar[str] = "optim.lr_scale"
+    radii: float = bounded(1.0, "[0, inf)")
+    corners: float = bounded(1.0, "[0, inf)")
+    pore_radii: float = bounded(1.0, "[0, inf)")
+    colours: float = bounded(1.0, "[0, inf)")
+
+
+@dataclass
+class OptimConfig(Schema):
+    """Adam per parameter group, optionally with cosine decay to final_fraction * lr."""
+    prefix: ClassVar[str] = "optim"
+    name: str = choice("adam", ("adam",))
+    lr: float = bounded(1e-3, "(0, inf)")
+    lr_scale: LrScale = field(default_factory=LrScale)
+    schedule: str = choice("constant", ("constant", "cosine"))
+    final_fraction: float = bounded(0.1, "[0, 1]")
+
+
+@dataclass
+class TrainerConfig(Schema):
+    prefix: ClassVar[str] = "trainer"
+    steps: int = bounded(100, "[1, 10000000]")
+    batch_size: int = bounded(8, "[1, 100000]")
+    eval_every: int = bounded(25, "[1, 10000000]")
+    checkpoint_every: int = bounded(25, "[1, 10000000]")
+    resume: Any = field(default="false", metadata={"doc": "false | true | force (ignore a changed config)"})
+    freeze_geometry: bool = False          # the paper's baseline: control only, the initial design stays
+    seed: int = bounded(0, "[0, 4294967295]")
+    fields: str = choice("final", ("final", "all", "none"),
+                         doc="HDF5 fields of the evaluation samples: of the final evaluation, of every one, or none")
+    fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
+    animation_frames: int = bounded(24, "[0, 1000]", doc="frames of figures/sweep.gif, the material as the task's "
+                                                        "descriptor sweeps its range; 0: none")
+    max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
+    init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
+    progress: bool = True
+
+    def check(self):
+        self.resume = str(self.resume).lower()  # Hydra parses `trainer.resume=true` as a bool
+        if self.resume not in ("false", "true", "force"):
+            self.fail("resume", "must be one of ['false', 'true', 'force']", self.resume)
+
+
+@dataclass
+class LoggerConfig(Schema):
+    prefix: ClassVar[str] = "logger"
+    name: str = choice("wandb", ("wandb", "none"))
+    mode: str = choice("offline", ("offline", "online", "disabled"), doc="offline needs no network")
+    project: str = "nma"
