@@ -6,9 +6,17 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from flax import serialization  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
 
 from nma import config  # noqa: E402
+from nma.schema import register  # noqa: E402
 from nma.simulator import Simulator  # noqa: E402
 
 _SIMS = {}
@@ -49,3 +57,57 @@ def barrier_case():
     for _ in range(8):
         radii, d = rng.uniform(0.1, 0.9, (24, 16)), rng.uniform(-4.0, 4.0, 2)
     return radii, d
+
+
+FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
+        "trainer.animation_frames=3", "task.eval_grid=2", "fidelity=fast"]
+
+
+def compose_cfg(*overrides):
+    register()  # the schemas in Hydra's ConfigStore, as every command does on import
+    with initialize_config_dir(config_dir=str(config.CONF_DIR), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def nma_run(run_dir, *overrides, mpi=0, timeout=600):
+    cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
+    if mpi:
+        cmd = ["mpiexec", "-n", str(mpi), *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc
+
+
+def final_params(run_dir):
+    ckpts = sorted((Path(run_dir) / "checkpoints").glob("step_*.msgpack"))
+    return serialization.msgpack_restore(ckpts[-1].read_bytes())["params"]
+
+
+def assert_same_params(a, b, rtol):
+    flat_a, flat_b = (dict(_flatten(x)) for x in (a, b))
+    assert flat_a.keys() == flat_b.keys()
+    for k in flat_a:
+        np.testing.assert_allclose(flat_a[k], flat_b[k], rtol=rtol, atol=1e-12, err_msg=k)
+
+
+def _flatten(tree, prefix=""):
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            yield from _flatten(v, f"{prefix}/{k}")
+    else:
+        yield prefix, np.asarray(tree)
+
+
+@pytest.fixture(scope="session")
+def translation_run(tmp_path_factory):
+    """A two-step translation run (fidelity fast, wandb offline), shared by the training, checkpoint, cluster
+    and evaluation tests."""
+    run_dir = tmp_path_factory.mktemp("translation")
+    nma_run(run_dir, "task=translation", "logger=wandb", *FAST)
+    return run_dir
+
+
+def copy_run(src, dst):
+    import shutil
+    shutil.copytree(src, dst)
+    return dst

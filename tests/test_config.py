@@ -8,10 +8,13 @@ import subprocess
 import sys
 
 import pytest
+from omegaconf import OmegaConf
 
-from nma import cli, export, run, simulate
+from conftest import compose_cfg
+from nma import cli, config, export, run, simulate
 from nma.errors import ConfigError, Stopped
 from nma.schema import ExportConfig, Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
+from nma.train.runs import validate
 
 BAD_RUN = [
     ("trainer.batch_size=abc", "trainer.batch_size must be an integer, got 'abc'"),
@@ -249,10 +252,50 @@ def test_commands_are_console_scripts():
 def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
     """Runs from before material.formulation existed resume: the default is left out of the fingerprint
     (as contact is when off), another formulation is in it, so its checkpoints are never mixed up."""
-    from nma.train.runs import fingerprint, validate
-    from test_platform import compose_cfg
+    from nma.train.runs import fingerprint
 
     default = fingerprint(validate(compose_cfg("task=translation", "logger=none")))
     mixed = fingerprint(validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed")))
     assert default["material"] == {"E": 0.07, "nu": 0.3}
     assert mixed["material"]["formulation"] == "mixed" and "contact" not in default
+
+
+@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment",
+                                   "debug"])
+def test_every_config_option_composes_and_validates(group):
+    needs = {"repro_mnist_fit": ["task.lookup_run=outputs/repro/digital_mnist/lookup"]}  # a phase's input
+    for option in config.options(group):
+        cfg = compose_cfg(f"{group}={option}", *needs.get(option, []))
+        validate(cfg)
+    with pytest.raises(ConfigError, match="task.lookup_run must name the lookup phase's run directory"):
+        validate(compose_cfg("experiment=repro_mnist_fit"))
+
+
+@pytest.mark.parametrize("name", ["rotation_single", "rotation_double"])
+def test_refinement_stage_changes_only_fidelity_and_schedule(name):
+    """repro_<name>_refine continues the joint run of repro_<name> (experiments/repro.py): the same task,
+    scene, material, model and design box, only a finer discretisation and a short, slower schedule."""
+    base = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}"))
+    refine = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}_refine"))
+    assert (refine["fidelity"]["ctrl_per_patch"], refine["fidelity"]["quad_points"]) == (8, 2)
+    assert (base["fidelity"]["ctrl_per_patch"], base["fidelity"]["quad_points"]) == (5, 2)
+    assert refine["trainer"]["steps"] < base["trainer"]["steps"] and refine["optim"]["lr"] < base["optim"]["lr"]
+    for cfg in (base, refine):
+        cfg.pop("fidelity"), cfg["optim"].pop("lr")
+        for key in ("steps", "eval_every", "checkpoint_every"):
+            cfg["trainer"].pop(key)
+    assert refine == base
+
+
+@pytest.mark.parametrize("override, message", [
+    ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
+    ("scene.radii_bounds=[0.1,1.5]", "scene.radii_bounds must be a list of numbers, each in (0, 1)"),
+    ("optim.lr=-0.1", "optim.lr must be a finite number in (0, inf), got -0.1"),
+    ("trainer.steps=0", "trainer.steps must be an integer in [1, 10000000], got 0"),
+    ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu']"),
+    ("optim.lr_scale.radii=-1", "optim.lr_scale.radii must be a finite number in [0, inf)"),
+])
+def test_bad_config_names_field_and_range(override, message):
+    with pytest.raises(ConfigError) as err:
+        validate(compose_cfg(override))
+    assert message in str(err.value)

@@ -146,7 +146,7 @@ def trained_run(tmp_path_factory, design):
 
 def test_export_command_writes_the_file_and_report(trained_run, design):
     # states=false: this run directory holds a geometry but no network to drive it (a real run's states:
-    # test_platform.py)
+    # test_train.py)
     proc = subprocess.run([sys.executable, "-m", "nma.export", f"run={trained_run}", "format=dxf", "scale=2.5",
                            "states=false"],
                           capture_output=True, text=True, timeout=300)

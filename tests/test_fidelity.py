@@ -69,7 +69,7 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     from nma.geometry.discretise import discretise
     from nma.geometry.scene import scene_from_config
     from nma.train.runs import fidelity_record, fingerprint, validate
-    from test_platform import compose_cfg
+    from conftest import compose_cfg
 
     with caplog.at_level(logging.INFO, logger="nma.fidelity"):
         settings = validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none"))

@@ -1,0 +1,86 @@
+"""Checkpoints: a killed or signalled run resumes to the uninterrupted one; a changed config or a corrupt
+checkpoint is refused or skipped, saying which."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import FAST, assert_same_params, copy_run, final_params, nma_run
+from nma.errors import ConfigError
+
+
+def test_kill_and_resume_matches_uninterrupted(tmp_path, translation_run):
+    """SIGKILL after the first checkpoint, resume, and land on the uninterrupted run's parameters."""
+    args = ["task=translation", "logger=none", "trainer.checkpoint_every=1", *FAST]
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "nma.run", f"hydra.run.dir={killed}", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 300
+    while not (killed / "checkpoints" / "step_0000001.msgpack").exists():
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    nma_run(killed, *args, "trainer.resume=true")
+    assert "resumed from" in (killed / "run.log").read_text()
+    assert_same_params(final_params(killed), final_params(translation_run), rtol=1e-12)
+
+
+def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(tmp_path, translation_run):
+    """SIGTERM (what SLURM sends before a time limit) during the first step: the run finishes that step,
+    checkpoints it (checkpoint_every would not have), says so in one line, exits 143; resuming lands on
+    the uninterrupted run's parameters."""
+    args = ["task=translation", "logger=none", *FAST]
+    stopped = tmp_path / "stopped"
+    proc = subprocess.Popen([sys.executable, "-m", "nma.run", f"hydra.run.dir={stopped}", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 300
+    while not ((stopped / "run.log").exists() and "dofs" in (stopped / "run.log").read_text()):
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)  # the trainer is built; its first step (compiling) takes seconds
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err[-2000:]
+    assert "error: stopped by SIGTERM after step 1 of 2; checkpoint" in err and "trainer.resume=true" in err
+    assert [p.name for p in (stopped / "checkpoints").glob("step_*.msgpack")] == ["step_0000001.msgpack"]
+    nma_run(stopped, *args, "trainer.resume=true")
+    assert_same_params(final_params(stopped), final_params(translation_run), rtol=1e-12)
+
+
+@pytest.mark.parametrize("change, named", [("trainer.batch_size=4", "trainer.batch_size: 2 -> 4"),
+                                           ("model.hidden=[8]", "model.hidden: None -> [8]"),
+                                           ("task.box_half_width=1.0", "task.box_half_width: 1.5 -> 1.0")])
+def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translation_run, monkeypatch, capsys,
+                                                             change, named):
+    from nma import run
+    d = copy_run(translation_run, tmp_path / "run")
+    recorded = (d / ".hydra" / "config.yaml").read_text()
+    monkeypatch.setattr(sys, "argv", ["nma", f"hydra.run.dir={d}", "task=translation", "logger=wandb", *FAST,
+                                      "trainer.resume=true", change])
+    with pytest.raises(SystemExit) as exit_:
+        run.main()
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and named in err and "trainer.resume=force" in err, err
+    assert (d / ".hydra" / "config.yaml").read_text() == recorded  # the run's record is untouched
+
+
+@pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])
+def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translation_run, caplog, damage):
+    from nma.train import checkpoint
+    good = final_params(translation_run)
+    d = tmp_path / "checkpoints"
+    d.mkdir()
+    latest = sorted((translation_run / "checkpoints").glob("step_*.msgpack"))[-1]
+    (d / "step_0000002.msgpack").write_bytes(latest.read_bytes())
+    blob = latest.read_bytes()[: len(latest.read_bytes()) // 2] if damage == "truncated" else damage
+    (d / "step_0000003.msgpack").write_bytes(blob)
+    path, raw = checkpoint.load_latest(d)
+    assert path.name == "step_0000002.msgpack"
+    assert "step_0000003.msgpack is unreadable" in caplog.text
+    assert_same_params(raw["params"], good, rtol=0)
+    (d / "step_0000002.msgpack").write_bytes(b"")
+    with pytest.raises(ConfigError, match="no readable checkpoint in .*step_0000003.*step_0000002"):
+        checkpoint.load_latest(d)

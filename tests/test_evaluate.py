@@ -1,0 +1,42 @@
+"""nma.evaluate: a trained run re-evaluated, at its own fidelity and another."""
+import json
+
+import pytest
+from omegaconf import OmegaConf
+
+from conftest import copy_run
+from nma.errors import ConfigError
+
+
+def test_evaluate_refuses_a_checkpoint_its_config_does_not_fit(tmp_path, translation_run):
+    """A run whose recorded config no longer fits its checkpoint (here the network's widths) is not
+    evaluated with a freshly initialised network: ConfigError naming what does not fit."""
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity
+
+    d = copy_run(translation_run, tmp_path / "run")
+    recorded = d / ".hydra" / "config.yaml"
+    cfg = OmegaConf.load(recorded)
+    cfg.model.hidden = [8]
+    OmegaConf.save(cfg, recorded)
+    with pytest.raises(ConfigError, match=r"does not fit this run's config: the network"):
+        evaluate(EvaluateConfig(run=str(d), fidelity=Fidelity(5, 3)))
+
+
+def test_evaluate_reproduces_the_run_and_refines_it(translation_run):
+    """nma.evaluate: the run's checkpoint at its own fidelity gives its metrics.json value back; at the
+    paper fidelity (5 Gauss points instead of 3) the same design gives a nearby value, side by side."""
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity
+
+    result = evaluate(EvaluateConfig(run=str(translation_run), fidelity=Fidelity(5, 5)))
+    logged = json.loads((translation_run / "metrics.json").read_text())
+    assert result["training_fidelity"]["metric"] == pytest.approx(logged["value"], rel=1e-9)
+    assert result["training_fidelity"]["fidelity"] == logged["fidelity"]
+    assert logged["fidelity"]["ctrl_per_patch"] == 5 and logged["fidelity"]["quad_points"] == 3
+    assert logged["fidelity"]["auto"] is None
+    refined = result["evaluated_fidelity"]
+    assert refined["fidelity"]["quad_points"] == 5 and refined["failed_solves"] == 0
+    assert result["change"] == pytest.approx(refined["metric"] - logged["value"], rel=1e-9)
+    assert 0 < abs(result["change"]) < 0.1 * logged["value"]
+    assert json.loads((translation_run / "evaluate" / "5x5.json").read_text())["change"] == result["change"]

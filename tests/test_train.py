@@ -1,0 +1,154 @@
+"""Training from the command line: the run directory and its artefacts, every task, failures that stop a run."""
+import json
+import subprocess
+import sys
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import FAST, assert_same_params, copy_run, final_params, nma_run
+from nma import config
+
+
+def test_run_directory_holds_every_artefact(translation_run):
+    d = translation_run
+    assert (d / ".hydra" / "config.yaml").exists() and (d / "run.log").exists()
+    assert list((d / "checkpoints").glob("step_0000002.msgpack"))
+    metrics = json.loads((d / "metrics.json").read_text())
+    assert metrics["metric"] == "mean_pointer_error" and np.isfinite(metrics["value"])
+    assert [h["step"] for h in metrics["history"]] == [1, 2]
+    assert len(list((d / "fields").glob("eval_*.h5"))) == 4 == len(list((d / "fields").glob("eval_*.xdmf")))
+    for png in ("design.png", "deformed.png", "curves.png", "errors.png"):
+        assert (d / "figures" / png).stat().st_size > 5_000
+    from PIL import Image
+
+    with Image.open(d / "figures" / "sweep.gif") as gif:  # the material along the task's sweep, frame by frame
+        assert gif.n_frames == 3
+    assert list((d / "wandb").glob("offline-run-*"))  # wandb logs offline by default
+
+
+def test_every_evaluated_state_is_checked_and_the_export_says_so(translation_run, tmp_path):
+    """metrics.json counts the states that are not physical objects; the fabrication report takes them
+    from the run's final evaluation, and solving that evaluation again gives the same counts."""
+    from nma.export import ExportConfig, export
+
+    metrics = json.loads((translation_run / "metrics.json").read_text())
+    assert metrics["checked_states"] == 4 and 0 <= metrics["invalid_states"] <= 4
+    assert metrics["invalid_states"] == len(metrics["invalid_samples"])
+    assert 0 < metrics["min_J"] <= 1.5 and 0 < metrics["min_gap"] < 2.5
+    report = export(ExportConfig(run=str(translation_run), output=str(tmp_path / "a.svg")))
+    states = report["evaluation_states"]
+    assert states["source"].startswith("the run's final evaluation") and states["step"] == metrics["step"]
+    assert states["valid"] == (metrics["invalid_states"] == 0)
+    run = copy_run(translation_run, tmp_path / "run")
+    (run / "metrics.json").unlink()
+    again = export(ExportConfig(run=str(run), output=str(tmp_path / "b.svg"), load_cases=True))
+    # the paper's Fig. 5 in simulation: tension and compression move the pointer in opposite directions
+    cases = again["load_cases"]["cases"]
+    assert list(cases) == ["tension", "compression", "one-sided compression"] and all(c["converged"] for c in cases.values())
+    assert np.dot(cases["tension"]["pointer_displacement_mm"], cases["compression"]["pointer_displacement_mm"]) < 0
+    assert (tmp_path / "load_cases.png").stat().st_size > 20_000
+    again = again["evaluation_states"]
+    assert again["source"].startswith("solved again")
+    assert again["invalid_states"] == metrics["invalid_states"] and again["checked_states"] == 4
+    assert again["min_J"] == pytest.approx(metrics["min_J"], rel=1e-8)
+
+
+def test_hdf5_fields_match_the_solution(translation_run):
+    import h5py
+
+    from nma.mechanics.material import material
+    from nma.simulator import Simulator
+
+    sim = Simulator.from_config(config.load("scene", "translation"), config.load("fidelity", "fast"))
+    geom = {k: jnp.asarray(v) for k, v in final_params(translation_run)["geom"].items()}
+    with h5py.File(translation_run / "fields" / "eval_001.h5") as f:
+        d, u_file, X_file = f.attrs["actuation"], f["control/displacement"][()], f["control/reference"][()]
+    sol = sim.solve(geom, jnp.asarray(d), material(0.07, 0.3))
+    np.testing.assert_allclose(X_file, sim.reference_points(geom), atol=1e-12)
+    np.testing.assert_allclose(u_file, sol.u, atol=1e-9)
+
+
+@pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", "task.eval_angles=3", "mean_angle_error_deg"),
+                                                      ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
+                                                      ("shape_matching", "task.eval_targets=3", "shape_error"),
+                                                      ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
+def test_tasks_train_from_the_command_line(tmp_path, task, eval_size, metric):
+    nma_run(tmp_path, f"task={task}", "logger=none", eval_size, *FAST[:-2], "fidelity=fast")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["metric"] == metric and len(metrics["per_sample"]) == 3
+    assert np.all(np.isfinite(metrics["per_sample"]))
+    assert len(list((tmp_path / "fields").glob("eval_*.h5"))) == 3
+    extra = {"shape_matching": ["shapes.png", "errors.png"], "digital_mnist": ["colours.png"]}.get(task, ["errors.png"])
+    for png in ["design.png", "deformed.png", "curves.png", "sweep.gif"] + extra:
+        assert (tmp_path / "figures" / png).stat().st_size > 5_000
+
+
+def test_diverging_learning_rate_stops_with_its_cause(tmp_path):
+    """A finite but absurd learning rate: the network's actuations turn non-finite at step 2; the run
+    stops at once with exit 1, naming the diverged group and the learning rate, not the solver."""
+    cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={tmp_path}", "logger=none", *FAST,
+           "trainer.steps=20", "optim.lr=1e200"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: step 1:") and "network (max |value| 1e+200)" in last
+    assert "optim.lr = 1e+200" in last and "Traceback" not in proc.stderr
+
+
+def test_nonfinite_loss_skips_updates_then_stops(simulator, tmp_path):
+    """optax.apply_if_finite skips an update whose gradient is not finite; after
+    trainer.max_nonfinite_steps in a row the run stops with the cause."""
+    import jax
+    from nma.mechanics.material import material
+    from nma.models.mlp import mlp
+    from nma.schema import OptimConfig, TrainerConfig, TranslationTask
+    from nma.tasks.translation import translation
+    from nma.errors import TrainingError
+    from nma.train.trainer import Trainer
+
+    sim = simulator("translation", quad_points=3)
+    task = translation(TranslationTask(eval_grid=1), sim)
+    task.loss = lambda out, t: jnp.sum(out) * jnp.nan
+    trainer = Trainer(task, sim, mlp([4], sim.n_actuations, task.d_max), material(0.07, 0.3),
+                      TrainerConfig(steps=10, batch_size=1, max_nonfinite_steps=2, progress=False),
+                      OptimConfig(), tmp_path)
+    before = jax.tree_util.tree_map(np.asarray, trainer.state["params"])
+    assert trainer.step()["skipped_update"] == 1
+    with pytest.raises(TrainingError, match=r"step 2: the loss or gradient was not finite for 2 steps in a row"):
+        trainer.step()
+    assert_same_params(trainer.state["params"], before, rtol=0)
+
+
+@pytest.mark.slow
+def test_digital_mnist_phases_chain(tmp_path):
+    """Lookup table -> network fitted to it (no simulation) -> end-to-end fine-tuning, each phase
+    starting from the one before (trainer.init_from)."""
+    small = ["trainer.progress=false", "task.eval_digits=2", "trainer.eval_every=100"]
+    lookup, fit, tune = tmp_path / "lookup", tmp_path / "fit", tmp_path / "finetune"
+    nma_run(lookup, "experiment=repro_mnist_lookup", "trainer.steps=2", "trainer.batch_size=2", *small)
+    table = json.loads((lookup / "metrics.json").read_text())
+    assert table["metric"] == "lookup_digits_correct" and 0 <= table["value"] <= 10
+    assert np.asarray(table["eval_actuations"]).shape == (10, 6)
+    nma_run(fit, "experiment=repro_mnist_fit", "trainer.steps=30", "trainer.batch_size=32",
+            f"task.lookup_run={lookup}", f"trainer.init_from={lookup}", *small)
+    losses = [h["loss"] for h in json.loads((fit / "metrics.json").read_text())["history"]]
+    assert losses[-1] < 0.5 * losses[0]  # the regression onto the table learns
+    lookup_geom, fit_geom = final_params(lookup)["geom"], final_params(fit)["geom"]
+    np.testing.assert_array_equal(fit_geom["colours"], lookup_geom["colours"])  # taken over, not learned
+    nma_run(tune, "experiment=repro_mnist_finetune", "trainer.steps=1", "trainer.batch_size=1",
+            f"trainer.init_from={fit}", *small)
+    metrics = json.loads((tune / "metrics.json").read_text())
+    assert {"digit_exact_match", "digit_segment_accuracy"} <= metrics.keys()
+    np.testing.assert_array_equal(final_params(tune)["geom"]["radii"], lookup_geom["radii"])  # pores fixed
+
+
+def test_fields_are_written_as_asked(tmp_path):
+    """trainer.fields: every evaluation into fields/step_<n>/, or none at all (default: the final one)."""
+    nma_run(tmp_path / "all", "logger=none", *FAST, "trainer.eval_every=1", "trainer.fields=all")
+    for step in (1, 2):
+        assert len(list((tmp_path / "all" / "fields" / f"step_{step:07d}").glob("eval_*.h5"))) == 4
+    assert not list((tmp_path / "all" / "fields").glob("eval_*.h5"))
+    nma_run(tmp_path / "none", "logger=none", *FAST, "trainer.fields=none")
+    assert (tmp_path / "none" / "metrics.json").exists() and not (tmp_path / "none" / "fields").exists()
