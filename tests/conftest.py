@@ -100,10 +100,10 @@ def _flatten(tree, prefix=""):
 
 @pytest.fixture(scope="session")
 def translation_run(tmp_path_factory):
-    """A two-step translation run (fidelity fast, wandb offline), shared by the training, checkpoint, cluster
-    and evaluation tests."""
+    """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the first on 2
+    of the 4 evaluation targets), shared by the training, checkpoint, cluster and evaluation tests."""
     run_dir = tmp_path_factory.mktemp("translation")
-    nma_run(run_dir, "task=translation", "logger=wandb", *FAST)
+    nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1", "trainer.eval_subset=2")
     return run_dir
 
 

@@ -18,6 +18,8 @@ def test_run_directory_holds_every_artefact(translation_run):
     metrics = json.loads((d / "metrics.json").read_text())
     assert metrics["metric"] == "mean_pointer_error" and np.isfinite(metrics["value"])
     assert [h["step"] for h in metrics["history"]] == [1, 2]
+    # evaluations before the last on trainer.eval_subset samples, the last (the run's metric) on all
+    assert [h["eval_samples"] for h in metrics["history"]] == [2, 4] and len(metrics["per_sample"]) == 4
     assert len(list((d / "fields").glob("eval_*.h5"))) == 4 == len(list((d / "fields").glob("eval_*.xdmf")))
     for png in ("design.png", "deformed.png", "curves.png", "errors.png"):
         assert (d / "figures" / png).stat().st_size > 5_000

@@ -43,6 +43,9 @@ class TrainerConfig(Schema):
     steps: int = bounded(100, "[1, 10000000]")
     batch_size: int = bounded(8, "[1, 100000]")
     eval_every: int = bounded(25, "[1, 10000000]")
+    eval_subset: Optional[int] = bounded(200, "[1, 100000000]", doc="evaluations before the last use this many "
+                                         "samples of the evaluation set, evenly spaced through it (the same ones "
+                                         "every time); the last evaluation, the run's metric, uses all; null: all")
     checkpoint_every: int = bounded(25, "[1, 10000000]")
     resume: Any = field(default="false", metadata={"doc": "false | true | force (ignore a changed config)"})
     freeze_geometry: bool = False          # the paper's baseline: control only, the initial design stays

@@ -209,6 +209,16 @@ class Trainer:
                                  "parameters or a learning rate too large")
         return f"step {step}: {what}. {cause} ({rates}). Lower optim.lr and start a new run."
 
+    def eval_subset(self):
+        """The evaluation samples of an evaluation before the last: trainer.eval_subset of them, evenly
+        spaced through the task's evaluation set (all of it where that is no larger)."""
+        ts = self.task.eval_set()
+        n = len(jax.tree_util.tree_leaves(ts)[0])
+        if self.cfg.eval_subset is None or self.cfg.eval_subset >= n:
+            return ts
+        idx = np.linspace(0, n - 1, self.cfg.eval_subset).round().astype(int)
+        return jax.tree_util.tree_map(lambda a: a[idx], ts)
+
     def evaluate(self, ts=None) -> Evaluation:
         """The metric on the task's evaluation set (or on descriptors `ts`) at the current parameters."""
         ts = self.task.eval_set() if ts is None else ts
@@ -292,14 +302,16 @@ class Trainer:
             step = rec["step"]
             if step % self.cfg.eval_every == 0 or step == self.cfg.steps:
                 if self.world.is_root:
-                    ev = self.evaluate()
+                    ev = self.evaluate(None if step == self.cfg.steps else self.eval_subset())
                     r = ev.record
                     rec[self.task.metric_name] = r[self.task.metric_name]
                     rec["invalid_states"] = r["invalid_states"]
+                    rec["eval_samples"] = len(r["per_sample"])
                     last_eval = ev
-                    log.info("step %d: %s = %.4g %s on the evaluation set (%d failed solves, %d of %d states "
-                             "not physical)", step, self.task.metric_name, r[self.task.metric_name],
-                             self.task.metric_unit, r["failed_solves"], r["invalid_states"], r["checked_states"])
+                    log.info("step %d: %s = %.4g %s on %d samples of the evaluation set (%d failed solves, %d of %d "
+                             "states not physical)", step, self.task.metric_name, r[self.task.metric_name],
+                             self.task.metric_unit, len(r["per_sample"]), r["failed_solves"], r["invalid_states"],
+                             r["checked_states"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)
