@@ -45,6 +45,10 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, MissingConfigException) and exc.missing_cfg_file:
         group, _, name = str(exc.missing_cfg_file).rpartition("/")
         options = [o for o in (exc.options or []) if not o.endswith("_schema")]
+        if group == "scene" and (CONF_DIR / "task" / f"{name}.yaml").is_file():
+            # scene defaults to the task's option name; a task posed in YAML may be named otherwise
+            return (f"task={name} names no scene of its own name (scene={name} is unknown): give its scene, "
+                    f"scene=<one of {options}>")
         if group:
             return f"{group}={name} is unknown; choose one of {options}"
     return explain(exc)

@@ -28,8 +28,8 @@ def load(group: str, name: str) -> dict:
     if not path.exists():
         raise ConfigError(f"{group}={name!r} is unknown; choose one of {options(group)}")
     body = yaml.safe_load(path.read_text()) or {}
-    body.pop("defaults", None)
+    defaults = body.pop("defaults", None)
     if group == "task":
         body.setdefault("name", name)
-    kind = schema.TASK_SCHEMAS[name] if group == "task" else GROUP_SCHEMAS[group]
+    kind = schema.task_schema(body, defaults) if group == "task" else GROUP_SCHEMAS[group]
     return OmegaConf.to_container(OmegaConf.structured(schema.build(kind, body)))

@@ -31,3 +31,18 @@ class Registry(Generic[T]):
 TASKS: Registry = Registry("task.name")
 MODELS: Registry = Registry("model.name")
 LINEAR_SOLVERS: Registry = Registry("solver.linear")
+
+PLUGIN_GROUP = "nma.tasks"  # entry points of installed packages whose modules register tasks
+
+
+def load_plugins() -> None:
+    """Import the module of every `nma.tasks` entry point of an installed package: a task written outside
+    nma registers itself there (its factory in TASKS, its schema in nma.schema.TASK_SCHEMAS)."""
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group=PLUGIN_GROUP):
+        try:
+            ep.load()
+        except Exception as exc:
+            raise ConfigError(f"the {PLUGIN_GROUP} entry point {ep.name} = {ep.value} does not import: "
+                              f"{type(exc).__name__}: {exc}") from None

@@ -26,7 +26,7 @@ BAD_RUN = [
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
     ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
     ("scene=translaton", "scene=translaton is unknown; choose one of"),
-    ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_single', 'shape_matching', 'translation']"),
+    ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_double_spec',"),
     ("optim.lr=inf", "optim.lr must be a finite number in (0, inf), got inf"),
     ("optim.lr=nan", "optim.lr must be a finite number in (0, inf), got nan"),
     ("optim.lr_scale.corners=inf", "optim.lr_scale.corners must be a finite number in [0, inf)"),
@@ -43,6 +43,17 @@ BAD_RUN = [
     # a discretisation far beyond any machine's memory (the element tangents alone: ~700 GiB)
     ("fidelity.ctrl_per_patch=998", "fidelity.ctrl_per_patch=998 with 5 Gauss points needs at least"),
     ("trainer.init_from=/nonexistent/run", "trainer.init_from=/nonexistent/run is not a directory"),
+    # a task posed in YAML (nma.tasks.spec): every mistake names the field
+    ("task=translation_spec scene=translation task.goal=spin", "task.goal must be one of ['move', 'rotate', 'distance']"),
+    ("task=translation_spec scene=translation task.points=[nowhere]",
+     "task.points names ['nowhere'], which scene translation does not track; its tracked points are ['pointer']"),
+    ("task=translation_spec scene=translation task.goal=rotate", "task.points must name 2 tracked points for goal rotate"),
+    ("task=translation_spec scene=translation task.low=[0]", "task.low must have 2 values for goal move"),
+    ("task=translation_spec scene=translation task.high=[-2,2]", "task.high must exceed task.low [-1.5, -1.5]"),
+    ("task=rotation_single_spec scene=rotation_single task.high=[4]", "task.low and task.high are angles in radians"),
+    ("task=translation_spec scene=translation task.loss=l3", "task.loss must be one of ['l1', 'l2']"),
+    ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "
+                              "unknown): give its scene, scene=<one of ['digital_mnist',"),
 ]
 BAD_SIMULATE = [
     ("actuation=1.0", "actuation must be a list such as [1.0, 2.0], got a single float"),
@@ -65,7 +76,7 @@ def call(main, argv, monkeypatch, capsys):
 
 @pytest.mark.parametrize("override, message", BAD_RUN)
 def test_training_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys, override, message):
-    code, err = call(run.main, [override, f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    code, err = call(run.main, [*override.split(" "), f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
     assert code == 2
     assert err.strip().splitlines() == [f"error: {err.strip()[7:]}"] and message in err, err
     assert "Traceback" not in err and not (tmp_path / "run").exists()
@@ -265,6 +276,8 @@ def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
 def test_every_config_option_composes_and_validates(group):
     needs = {"repro_mnist_fit": ["task.lookup_run=outputs/repro/digital_mnist/lookup"]}  # a phase's input
     for option in config.options(group):
+        if group == "task" and option not in config.options("scene"):  # a task named otherwise names its scene
+            needs[option] = [f"scene={config.load('task', option)['name']}"]
         cfg = compose_cfg(f"{group}={option}", *needs.get(option, []))
         validate(cfg)
     with pytest.raises(ConfigError, match="task.lookup_run must name the lookup phase's run directory"):

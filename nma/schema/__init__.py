@@ -16,12 +16,12 @@ from .compose import build, check_keys, explain, register
 from .fields import Schema, bounded, choice
 from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
 from .scene import GroupConfig, SceneConfig, SupportConfig
-from .tasks import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, ShapeMatchingTask, TaskConfig,
-                    TranslationTask)
+from .tasks import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, ShapeMatchingTask, SpecTask, TaskConfig,
+                    TranslationTask, task_schema)
 from .training import LoggerConfig, LrScale, ModelConfig, OptimConfig, TrainerConfig
 
 __all__ = ["EvaluateConfig", "ExportConfig", "OutputConfig", "SimulateConfig", "TrainConfig", "build", "check_keys",
            "explain", "register", "Schema", "bounded", "choice", "ContactConfig", "Fidelity", "MaterialConfig",
            "SolverConfig", "GroupConfig", "SceneConfig", "SupportConfig", "TASK_SCHEMAS", "DigitalMNISTTask",
-           "RotationTask", "ShapeMatchingTask", "TaskConfig", "TranslationTask", "LoggerConfig", "LrScale",
+           "RotationTask", "ShapeMatchingTask", "SpecTask", "TaskConfig", "task_schema", "TranslationTask", "LoggerConfig", "LrScale",
            "ModelConfig", "OptimConfig", "TrainerConfig"]

@@ -35,6 +35,8 @@ class TrainConfig:
         if self.task.name != self.scene.name:
             raise ConfigError(f"scene={self.scene.name} does not fit task={self.task.name}; "
                               f"each task runs on its scene of the same name")
+        if hasattr(self.task, "check_scene"):
+            self.task.check_scene(self.scene)
 
 
 @dataclass

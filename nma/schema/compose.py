@@ -78,10 +78,14 @@ def register() -> None:
     """Put the schemas into Hydra's ConfigStore (idempotent)."""
     from hydra.core.config_store import ConfigStore
 
+    from ..registry import load_plugins
+
+    load_plugins()  # tasks from outside nma bring their schemas
     cs = ConfigStore.instance()
     cs.store(name="train_schema", node=TrainConfig)
     cs.store(name="simulate_schema", node=SimulateConfig)
     cs.store(name="export_schema", node=ExportConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     for name, schema in TASK_SCHEMAS.items():
-        cs.store(group="task", name=f"{name}_schema", node=schema(name=name))
+        # a spec task has no defaults to build an instance from: its class is the node
+        cs.store(group="task", name=f"{name}_schema", node=schema if name == "spec" else schema(name=name))

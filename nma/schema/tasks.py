@@ -6,6 +6,7 @@ from typing import Any, ClassVar, List, Optional
 
 from omegaconf import MISSING
 
+from ..errors import ConfigError
 from .fields import Schema, bounded, choice
 
 
@@ -16,6 +17,11 @@ class TaskConfig(Schema):
     d_max: float = bounded(4.0, "(0, 5]", doc="actuations are d_max * tanh(network output)")
     hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [30, 30, 30],
                                 doc="the encoder's hidden widths for this task (authors' code: 3 x 30)")
+
+    @property
+    def factory(self) -> str:
+        """The name the task is registered under (nma.registry.TASKS)."""
+        return self.name
 
 
 @dataclass
@@ -91,6 +97,66 @@ class DigitalMNISTTask(TaskConfig):
             self.fail("reach", f"must be at least 2 d_max + 2 = {2 * self.d_max + 2:g}", self.reach)
 
 
+GOALS = {  # goal -> (points it needs, the descriptor's dimension)
+    "move": (None, 2),     # every point to its rest position + t
+    "rotate": (2, 1),      # the two points about their rest midpoint by t radians
+    "distance": (2, 1),    # the two points' distance to its rest value + t
+}
+
+
+@dataclass
+class SpecTask(TaskConfig):
+    """A task posed in YAML (nma.tasks.spec): the tracked points it observes, the goal it sets them as a
+    function of the descriptor t, and the box t is drawn from (uniformly in training; a grid of
+    eval_points per dimension in evaluation).  `name` is the scene's."""
+    points: List[str] = MISSING            # tracked points of the scene, in order
+    goal: str = choice("move", tuple(GOALS), doc="move: each point to rest + t (t in 2D); rotate: two points "
+                       "about their midpoint by t radians; distance: two points' distance to rest + t")
+    low: List[float] = MISSING             # the descriptor's box: low[i] <= t[i] <= high[i]
+    high: List[float] = MISSING
+    eval_points: int = bounded(5, "[1, 1000]", doc="evaluation: descriptors per dimension, evenly over the box")
+    loss: str = choice("l1", ("l1", "l2"), doc="per sample: mean absolute (l1) or squared (l2) error of the "
+                       "observed points (move, rotate) or of the distance")
+
+    @property
+    def factory(self) -> str:
+        return "spec"
+
+    def check(self):
+        need, dim = GOALS[self.goal]
+        if not self.points or len(set(self.points)) != len(self.points):
+            self.fail("points", "must name one or more distinct tracked points", self.points)
+        if need is not None and len(self.points) != need:
+            self.fail("points", f"must name {need} tracked points for goal {self.goal}", self.points)
+        for name in ("low", "high"):
+            if len(getattr(self, name)) != dim:
+                self.fail(name, f"must have {dim} value{'s' if dim > 1 else ''} for goal {self.goal} "
+                          f"(the descriptor's dimension)", getattr(self, name))
+        if not all(lo < hi for lo, hi in zip(self.low, self.high)):
+            self.fail("high", f"must exceed task.low {self.low} in every entry", self.high)
+        if self.goal == "rotate" and not all(-3.141592653589793 <= v <= 3.141592653589793 for v in self.low + self.high):
+            self.fail("low", "and task.high are angles in radians, within [-pi, pi], for goal rotate", [self.low, self.high])
+
+    def check_scene(self, scene) -> None:
+        """The points must be tracked by the scene (a SceneConfig)."""
+        missing = [p for p in self.points if p not in scene.tracked]
+        if missing:
+            raise ConfigError(f"task.points names {missing}, which scene {scene.name} does not track; its tracked "
+                              f"points are {sorted(scene.tracked)} (scene.tracked)")
+
+
 TASK_SCHEMAS: dict[str, type] = {"translation": TranslationTask, "rotation_single": RotationTask,
                                  "rotation_double": RotationTask, "shape_matching": ShapeMatchingTask,
-                                 "digital_mnist": DigitalMNISTTask}
+                                 "digital_mnist": DigitalMNISTTask, "spec": SpecTask}
+
+
+def task_schema(task: dict, defaults: list | None = None) -> type:
+    """The schema of a task config (a mapping): a spec task's (it names a goal, or its YAML file's defaults
+    list spec_schema), else the task name's; ConfigError if the name is not a task's."""
+    if "goal" in task or "spec_schema" in (defaults or []):
+        return SpecTask
+    name = task.get("name")
+    if name not in TASK_SCHEMAS or name == "spec":
+        raise ConfigError(f"task {name!r} is not one of {sorted(set(TASK_SCHEMAS) - {'spec'})}, and names no goal "
+                          "(a task posed in YAML: nma.tasks.spec)")
+    return TASK_SCHEMAS[name]

@@ -117,7 +117,8 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
                  f"{evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
                  + (f"; {n_invalid} of {evaluation.record['checked_states']} states not physical (red: material "
                     f"inverted or a wall through a wall)" if n_invalid else ""), fontsize=9)
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    if labels:
+        fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -201,6 +202,8 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
 
 
 def _draw_target(ax, task, out, t):
+    if np.asarray(out).size % 2 or np.asarray(task.shown_target(out, t)).size % 2:
+        return  # not points in the plane (a task from outside may observe anything): nothing to draw
     tgt = np.asarray(task.shown_target(out, t)).reshape(-1, 2)
     obs = np.asarray(out).reshape(-1, 2)
     if task.outline:

@@ -22,7 +22,7 @@ def validate(cfg: DictConfig) -> TrainConfig:
     from ..solver import linear  # noqa: F401
 
     settings = build(TrainConfig, cfg)
-    TASKS.get(settings.task.name)
+    TASKS.get(settings.task.factory)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
     return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
@@ -34,7 +34,7 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     from omegaconf import OmegaConf
 
     from ..errors import ConfigError
-    from ..schema import TASK_SCHEMAS
+    from ..schema import task_schema
     from . import checkpoint
 
     run = Path(run_dir)
@@ -42,10 +42,11 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
     cfg = OmegaConf.load(saved)
-    name = OmegaConf.select(cfg, "task.name")
-    if name not in TASK_SCHEMAS:
-        raise ConfigError(f"run={run}: its config names task {name!r}, not one of {sorted(TASK_SCHEMAS)}")
-    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(TASK_SCHEMAS[name])}, cfg))
+    try:
+        schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
+    except ConfigError as exc:
+        raise ConfigError(f"run={run}: {exc}") from None
+    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg))
     found = checkpoint.load_latest(run / "checkpoints")
     if found is None:
         raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
@@ -131,7 +132,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     workers = s.solver.workers or max(1, available_cores() // world.local_size)
     sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings(), s.material.formulation),
                     s.solver.linear, s.solver.newton(), workers)
-    task = TASKS.get(s.task.name)(s.task, sim)
+    task = TASKS.get(s.task.factory)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
                                      out_bias=s.model.out_bias)

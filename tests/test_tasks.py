@@ -1,0 +1,172 @@
+"""Tasks posed in YAML (nma.tasks.spec): the paper's translation and both rotations as specs are the
+hand-written tasks, to the last bit; a spec's goal sets what a figure shows."""
+import json
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import compose_cfg
+from nma import tasks  # noqa: F401  (registers the tasks)
+from nma.registry import TASKS
+from nma.train.runs import validate
+
+PAPER_AS_SPECS = ["translation", "rotation_single", "rotation_double"]
+
+
+def both(name, *overrides):
+    """The settings of task=<name> and of task=<name>_spec on the same scene."""
+    cls = validate(compose_cfg(f"task={name}", "logger=none", *overrides))
+    spec = validate(compose_cfg(f"task={name}_spec", f"scene={name}", "logger=none", *overrides))
+    return cls, spec
+
+
+@pytest.mark.parametrize("name", PAPER_AS_SPECS)
+def test_paper_tasks_as_specs_are_the_classes(simulator, name):
+    """Same evaluation set, same draws from the same key, same targets, loss and metric on the same
+    observations (bit for bit), so training takes the same steps."""
+    cls, spec = both(name)
+    sim = simulator(name, quad_points=2)
+    a, b = (TASKS.get(s.task.factory)(s.task, sim) for s in (cls, spec))
+    assert type(b).__name__ == "SpecTask" and (a.metric_name, a.d_max) == (b.metric_name, b.d_max)
+    np.testing.assert_array_equal(a.eval_set(), b.eval_set())
+    ts = a.sample(jax.random.PRNGKey(3), 16)
+    np.testing.assert_array_equal(ts, b.sample(jax.random.PRNGKey(3), 16))
+    X = sim.reference_points(sim.init_params())
+    u = 0.3 * jax.random.normal(jax.random.PRNGKey(5), X.shape)
+    out_a, out_b = a.observe(sim, {}, X, u), b.observe(sim, {}, X, u)
+    np.testing.assert_array_equal(jnp.reshape(out_a, out_b.shape), out_b)
+    np.testing.assert_array_equal(jnp.reshape(a.targets(ts), (16, *out_b.shape)), b.targets(ts))
+    for f in ("loss", "metric"):
+        np.testing.assert_array_equal(jax.vmap(lambda t: getattr(a, f)(out_a, t))(ts),
+                                      jax.vmap(lambda t: getattr(b, f)(out_b, t))(ts))
+
+
+def test_a_spec_trains_as_its_class(tmp_path):
+    """Two training steps of task=translation and of task=translation_spec from the same seed: the same
+    parameters and the same metric, to round-off."""
+    from nma.train.runs import make_trainer
+
+    fast = ["fidelity=fast", "trainer.steps=2", "trainer.batch_size=2", "trainer.progress=false",
+            "trainer.animation_frames=0"]
+    cls, spec = both("translation", *fast)
+    spec.task.eval_points, cls.task.eval_grid = 2, 2
+    results = []
+    for k, s in enumerate((cls, spec)):
+        trainer = make_trainer(s, tmp_path / str(k))
+        record = trainer.fit().record
+        results.append((record[trainer.task.metric_name], jax.tree_util.tree_leaves(trainer.state["params"])))
+    assert results[0][0] == pytest.approx(results[1][0], rel=1e-12)
+    for p, q in zip(results[0][1], results[1][1]):
+        np.testing.assert_allclose(p, q, rtol=1e-12, atol=1e-14)
+
+
+def test_distance_goal_reads_and_shows_the_distance(simulator):
+    """goal distance: the metric is the error of the two points' distance, and the target a figure draws
+    lies on the line through the reached points at the target distance."""
+    from nma.schema import SpecTask as SpecConfig
+    from nma.tasks.spec import SpecTask
+
+    sim = simulator("rotation_single", quad_points=2)
+    cfg = SpecConfig(name="rotation_single", points=["left", "right"], goal="distance", low=[-1.0], high=[2.0])
+    rest = jnp.stack([sim.disc.tracked_points(sim.reference_points(sim.init_params()))[p] for p in ("left", "right")])
+    task = SpecTask(cfg, rest)
+    out = rest + jnp.array([[-0.5, 0.0], [0.25, 0.0]])   # 0.75 further apart
+    t = jnp.array([1.0])
+    assert float(task.metric(out, t)) == pytest.approx(0.25)
+    shown = np.asarray(task.shown_target(out, t))
+    assert np.linalg.norm(shown[1] - shown[0]) == pytest.approx(float(jnp.linalg.norm(rest[1] - rest[0])) + 1.0)
+    assert task.coordinates(task.eval_set())[1] == ["change of distance [length units]"]
+
+
+def test_the_tutorials_commands_run(tmp_path):
+    """docs/tutorial.md's two training commands, at debug size (two steps at the fast discretisation):
+    the scene and the task it poses in YAML train, learned and frozen."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "tutorial.md").read_text()
+    commands = re.findall(r"^python3 -m nma\.run .*$", text, re.M)
+    assert len(commands) == 2
+    for k, line in enumerate(commands):
+        args = [a for a in shlex.split(line)[3:] if not a.startswith("hydra.run.dir=")]
+        run_dir = tmp_path / str(k)
+        proc = subprocess.run([sys.executable, "-m", "nma.run", *args, "debug=default", f"hydra.run.dir={run_dir}"],
+                              capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        assert metrics["metric"] == "mean_distance_error" and np.isfinite(metrics["value"])
+        assert metrics["freeze_geometry"] == ("freeze_geometry=true" in line)
+
+
+OUTSIDE_TASK = '''"""A task written outside nma: lift the midpoint of the strip's top corners by t."""
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from nma.registry import TASKS
+from nma.schema import TASK_SCHEMAS, TaskConfig
+from nma.tasks.base import Task
+
+
+@dataclass
+class LiftConfig(TaskConfig):
+    name: str = "strip"
+    d_max: float = 3.0
+
+
+class Lift(Task):
+    metric_name, metric_unit = "mean_lift_error", "length units"
+
+    def __init__(self, cfg, rest):
+        self.name, self.d_max, self.rest = cfg.name, cfg.d_max, rest
+
+    def sample(self, key, n):
+        return jax.random.uniform(key, (n, 1), minval=-0.5, maxval=0.5)
+
+    def observe(self, sim, geom, X, u):
+        t = sim.tracked(X, u)
+        return 0.5 * (t["top_left"][1:] + t["top_right"][1:])
+
+    def targets(self, t):
+        return self.rest + t
+
+    def metric(self, out, t):
+        return jnp.abs(out - self.targets(t))[0]
+
+    def eval_set(self):
+        return jnp.linspace(-0.5, 0.5, 3)[:, None]
+
+
+TASK_SCHEMAS["strip"] = LiftConfig
+
+
+@TASKS.register("strip")
+def lift(cfg, sim):
+    t = sim.disc.tracked_points(sim.reference_points(sim.init_params()))
+    return Lift(cfg, 0.5 * (t["top_left"][1:] + t["top_right"][1:]))
+'''
+
+
+def test_a_task_from_outside_registers_and_trains(tmp_path):
+    """A package that is not nma declares an `nma.tasks` entry point: its module registers a task and its
+    schema, a task file in the user's --config-dir selects it, and it trains from the command line."""
+    (tmp_path / "outside_task.py").write_text(OUTSIDE_TASK)
+    dist = tmp_path / "outside_task-0.1.dist-info"  # what pip install leaves: found on sys.path
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: outside-task\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[nma.tasks]\nlift = outside_task\n")
+    (tmp_path / "conf" / "task").mkdir(parents=True)
+    (tmp_path / "conf" / "task" / "lift.yaml").write_text("defaults:\n  - strip_schema\n  - _self_\n")
+    run_dir = tmp_path / "run"
+    env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-m", "nma.run", "--config-dir", str(tmp_path / "conf"), "task=lift",
+                           "scene=strip", "debug=default", f"hydra.run.dir={run_dir}"],
+                          capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["metric"] == "mean_lift_error" and np.isfinite(metrics["value"])
