@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: help install test test-all bench bench-train study-fidelity study-reference study-stability simulate run repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -35,6 +35,10 @@ simulate:           ## one forward solve of the translation scene
 run:                ## train the default experiment (translation, 100 steps)
 	$(PYTHON) -m nma.run
 
+tutorial:           ## docs/tutorial.md: the strip's task posed in YAML, joint and frozen -> outputs/tutorial/
+	$(PYTHON) -m nma.run task=strip_spread scene=strip hydra.run.dir=outputs/tutorial/joint
+	$(PYTHON) -m nma.run task=strip_spread scene=strip trainer.freeze_geometry=true hydra.run.dir=outputs/tutorial/frozen
+
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
 	$(PYTHON) experiments/repro.py translation --baseline-steps 80
 
@@ -51,5 +55,5 @@ repro-shape-matching: ## pore shape matching: joint vs frozen vs no actuation ->
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250
 
 clean:              ## remove outputs/ results and __pycache__
-	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro .pytest_cache
+	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro outputs/tutorial outputs/debug .pytest_cache
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
