@@ -116,7 +116,11 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                               args.config_dir)
                 check(without_hydra(cfg), cfg.hydra, args.multirun)
                 if not args.multirun:
-                    writable_dir(Path(cfg.hydra.run.dir), "hydra.run.dir")
+                    try:
+                        writable_dir(Path(cfg.hydra.run.dir), _run_dir_name(cfg))
+                    except PermissionError as exc:  # the system refuses the run directory: nothing has run
+                        _say(_os_error(exc), rank)
+                        sys.exit(SYSTEM)
                 first = first if first is not None else cfg.hydra
             except Exception as exc:  # composition and validation errors only: nothing has run
                 bad.setdefault(_bad_input(exc, overrides), []).append(" ".join(overrides[i] for i in varying))
@@ -132,6 +136,15 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                  f"{message} (in {len(where)} of {len(jobs)} jobs, e.g. {where[0] or 'every job'})", rank)
         sys.exit(BAD_INPUT)
     return first
+
+
+def _run_dir_name(cfg) -> str:
+    """How a command's run directory is named to its user: hydra.run.dir, or where a command on a run
+    (nma.evaluate, nma.export: run=<dir>) writes inside it."""
+    run, where = cfg.get("run"), Path(cfg.hydra.run.dir)
+    if isinstance(run, str) and where.parent == Path(run):
+        return f"run={run}: its {where.name}/ directory"
+    return "hydra.run.dir"
 
 
 def _bad_input(exc: Exception, overrides: list[str] = ()) -> str:
@@ -156,12 +169,25 @@ def _bad_input(exc: Exception, overrides: list[str] = ()) -> str:
 
 
 def writable_dir(path: Path, what: str) -> None:
-    """`path` is, or can be made, a directory this process writes (checked before Hydra creates it)."""
+    """`path` is, or can be made, a directory this process writes (checked before Hydra creates it):
+    ConfigError where the path is wrong (a file on the way), PermissionError (exit 3) where the system
+    refuses.  A missing directory is made and removed again: permission bits alone do not answer for
+    root, a read-only mount or /sys."""
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{what}={path} is an existing file, not a directory")
-    existing = next(p for p in (path, *path.absolute().parents) if p.exists())
+    chain = [path, *path.absolute().parents]
+    existing = next(p for p in chain if p.exists())
+    if not existing.is_dir():
+        raise ConfigError(f"{what}={path} lies below {existing}, which is a file, not a directory")
     if not os.access(existing, os.W_OK | os.X_OK):
-        raise ConfigError(f"{what}={path} cannot be written: {existing} is not writable by this user")
+        raise PermissionError(f"{what}={path} cannot be written: {existing} is not writable by this user")
+    if existing != path:
+        try:
+            path.mkdir(parents=True)
+        except OSError as err:
+            raise PermissionError(f"{what}={path} cannot be created: {err.strerror or err}") from None
+        for made in chain[:chain.index(existing)]:  # leave no trace
+            made.rmdir()
 
 
 def _remove_if_empty(run_dir: Path | None) -> None:

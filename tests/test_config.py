@@ -193,7 +193,40 @@ def test_a_run_directory_that_cannot_be_written_is_refused_up_front(tmp_path, mo
         code, err = call(simulate.main, [f"hydra.run.dir={locked / 'run'}"], monkeypatch, capsys)
     finally:
         locked.chmod(0o700)
-    assert code == 2 and "cannot be written" in err and not (locked / "run").exists()
+    assert code == 3 and "cannot be written" in err and not (locked / "run").exists()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc, where no one creates a directory")
+def test_a_run_directory_the_system_refuses_is_exit_3_and_one_line(tmp_path, monkeypatch, capsys):
+    """Permission bits do not answer for root or special file systems: the directory is made (and removed)
+    up front.  A path below a file is the user's mistake: exit 2."""
+    code, err = call(run.main, ["hydra.run.dir=/proc/nma-run"], monkeypatch, capsys)
+    assert code == 3 and err.strip().splitlines() == [
+        "error: hydra.run.dir=/proc/nma-run cannot be created: No such file or directory"], err
+    (tmp_path / "file").write_text("x")
+    code, err = call(run.main, [f"hydra.run.dir={tmp_path / 'file' / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and f"lies below {tmp_path / 'file'}, which is a file, not a directory" in err, err
+    code, err = call(run.main, [f"hydra.run.dir={tmp_path / 'new' / 'run'}", "trainer.steps=abc"], monkeypatch, capsys)
+    assert code == 2 and not (tmp_path / "new").exists()  # the check's directories are gone again
+
+
+def test_a_finished_run_without_checkpoints_is_not_started_again(tmp_path, monkeypatch, capsys):
+    old = fake_run(tmp_path / "old")
+    for p in (old / "checkpoints").iterdir():
+        p.unlink()
+    code, err = call(run.main, ["trainer.resume=true", f"hydra.run.dir={old}"], monkeypatch, capsys)
+    assert code == 2 and "holds a run's metrics.json but no checkpoint to continue from" in err, err
+    code, err = call(run.main, [f"hydra.run.dir={old}"], monkeypatch, capsys)
+    assert code == 2 and "(metrics.json)" in err and "trainer.resume=true" not in err, err
+
+
+def test_an_unknown_key_in_a_config_dir_file_is_named(tmp_path, monkeypatch, capsys):
+    (tmp_path / "trainer").mkdir()
+    (tmp_path / "trainer" / "bad.yaml").write_text("defaults:\n  - default\nstepz: 3\n")
+    code, err = call(run.main, ["--config-dir", str(tmp_path), "trainer=bad", f"hydra.run.dir={tmp_path / 'run'}"],
+                     monkeypatch, capsys)
+    assert code == 2 and err.strip() == ("error: trainer.stepz is not a known setting (Key 'stepz' not in "
+                                         "'TrainerConfig') (in the config file trainer/bad.yaml)"), err
 
 
 def test_init_from_a_run_of_another_scene_is_refused(tmp_path, monkeypatch, capsys):
@@ -207,11 +240,11 @@ def test_bad_input_found_after_start_up_leaves_no_run_directory(tmp_path):
     """A scene error only the discretisation finds (a tracked point in no patch) is still exit 2 with one
     line, and the run directory Hydra created for it goes again.  (A subprocess: inside the task
     function Hydra sets up logging on the test's captured stderr.)"""
-    proc = subprocess.run([sys.executable, "-m", "nma.simulate", "scene.tracked.pointer=[100.0,100.0]",
+    proc = subprocess.run([sys.executable, "-m", "nma.simulate", "scene.tracked.pointer=[2.5,2.5]",  # a pore's centre
                            f"hydra.run.dir={tmp_path / 'run'}"], capture_output=True, text=True, timeout=300)
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
     assert proc.returncode == 2 and lines == [
-        "error: scene translation: tracked point pointer at (100.0, 100.0) lies in no patch"], proc.stderr
+        "error: scene translation: tracked point pointer at (2.5, 2.5) lies in no patch"], proc.stderr
     assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
 
 

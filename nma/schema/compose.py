@@ -55,8 +55,12 @@ def explain(exc: BaseException, prefix: str = "") -> str:
     from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, ValidationError
 
     cause = exc
-    while cause.__cause__ is not None and not getattr(cause, "full_key", None):
-        cause = cause.__cause__
+    # Hydra wraps the error of a config file it composes (e.g. one from --config-dir): find the field's
+    while (cause.__cause__ or cause.__context__) is not None and not getattr(cause, "full_key", None):
+        cause = cause.__cause__ or cause.__context__
+    where = re.match(r"In '([^']+)':", str(exc))
+    if where and cause is not exc:
+        return f"{explain(cause, prefix)} (in the config file {where[1]}.yaml)"
     key = getattr(cause, "full_key", None) or ""
     key = f"{prefix}.{key}" if prefix and key and not key.startswith(prefix) else key
     first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__

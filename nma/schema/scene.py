@@ -168,6 +168,7 @@ class SceneConfig(Schema):
         _points("scene.locked_nodes", self.locked_nodes, int)
         _points("scene.central_pore", self.central_pore, int)
         self._check_one_piece()
+        self._check_in_material()
         for path, name, segment in ([("groups", f"of group {g.name}", g.segment) for g in self.groups]
                                     + [(f"supports[{k}]", "", s.segment) for k, s in enumerate(self.supports)]):
             self._check_on_boundary(path, name, segment)
@@ -202,6 +203,21 @@ class SceneConfig(Schema):
             self.fail("cells", "must be one piece (cells joined through shared edges); the cells at (row, column) "
                       f"{apart[:6]}{' ...' if len(apart) > 6 else ''}, counted from the top left from 1, are apart "
                       "from the rest")
+
+    def _check_in_material(self):
+        """Tracked and pinned points lie on the cells' material (in or on a cell that is not '.'); whether a
+        tracked point falls in a pore is known only with the design (the discretisation says so)."""
+        tol, xb, yb = self._tol(), self.breaks("x"), self.breaks("y")
+
+        def cells_at(v, breaks):  # the cell indices whose closed interval holds v
+            return [k for k, (b0, b1) in enumerate(zip(breaks, breaks[1:])) if b0 - tol <= v <= b1 + tol]
+
+        for path, points in (("tracked", self.tracked.items()), ("pinned", ((None, p) for p in self.pinned))):
+            for name, (x, y) in points:
+                if not any(self._filled(i, j) for i in cells_at(x, xb) for j in cells_at(y, yb)):
+                    what = f"point {name} at {[x, y]}" if name else f"point {[x, y]}"
+                    self.fail(path, f"{what} lies on no material: the cells span x {xb[0]:g} to {xb[-1]:g}, y "
+                              f"{yb[0]:g} to {yb[-1]:g}, and '.' cells are empty")
 
     def _boundary_problem(self, vertical: bool, line: float, lo: float, hi: float) -> str | None:
         """Why the piece [lo, hi] of the grid line x = line (vertical) or y = line is not outer boundary

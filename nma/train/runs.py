@@ -62,10 +62,13 @@ def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> No
 
     held = [p.name for p in (run_dir / "checkpoints", run_dir / "metrics.json")
             if p.exists() and (p.is_file() or checkpoint.latest(p))]
+    elsewhere = "start the new run in another directory (without hydra.run.dir or hydra.sweep.dir each run gets a new one)"
     if resume == "false" and held:
-        raise ConfigError(f"{what}={run_dir} holds a run already ({', '.join(held)}): continue it with "
-                          "trainer.resume=true, or start the new run in another directory (without "
-                          "hydra.run.dir or hydra.sweep.dir each run gets a new one)")
+        raise ConfigError(f"{what}={run_dir} holds a run already ({', '.join(held)}): "
+                          + ("continue it with trainer.resume=true, or " if "checkpoints" in held else "") + elsewhere)
+    if resume != "false" and held == ["metrics.json"]:  # a finished run whose checkpoints are gone
+        raise ConfigError(f"{what}={run_dir} holds a run's metrics.json but no checkpoint to continue from "
+                          f"(checkpoints/step_*.msgpack): trainer.resume={resume} would start it again; {elsewhere}")
 
 
 def check_init_from(path: Path, s: TrainConfig) -> None:
