@@ -83,9 +83,18 @@ def main() -> None:
     from .train.mpi import World
 
     world = World()
+    built: dict[str, None] = {}  # the scenes and fidelities a sweep's jobs were discretised at
 
     def check(cfg, hydra_cfg, multirun: bool):
         settings = validate(cfg)
+        if multirun:  # what only the discretisation finds (a tracked point in a pore), for every job at once
+            key = repr((settings.scene, settings.fidelity))
+            if key not in built:
+                from .geometry.discretise import discretise
+                from .geometry.scene import scene_from_config
+
+                discretise(scene_from_config(settings.scene), settings.fidelity)
+                built[key] = None
         world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
         if settings.trainer.init_from:
             check_init_from(Path(settings.trainer.init_from), settings)

@@ -100,6 +100,14 @@ def test_every_job_of_a_sweep_is_checked_first(tmp_path, monkeypatch, capsys):
         "error: trainer.batch_size must be an integer, got 'xyz' (in 2 of 6 jobs, e.g. trainer.seed=0 "
         "trainer.batch_size=xyz)"], err
     assert not (tmp_path / "sweep").exists()
+    # what only the discretisation finds (a tracked point in a pore) is found for every job up front too
+    argv = ["--multirun", "fidelity=fast", "scene.tracked.pointer=[12.5,12.5],[2.5,2.5],[7.5,7.5]",
+            f"hydra.sweep.dir={tmp_path / 'sweep'}"]
+    code, err = call(run.main, argv, monkeypatch, capsys)
+    assert code == 2 and err.strip().splitlines() == [
+        f"error: scene translation: tracked point pointer at ({p}, {p}) lies in no patch (in 1 of 3 jobs, e.g. "
+        f"scene.tracked.pointer=[{p},{p}])" for p in ("2.5", "7.5")], err
+    assert not (tmp_path / "sweep").exists()
     assert cli.job_overrides(["a=1,2", "b=x", "c=3,4"], True) == [
         ["a=1", "b=x", "c=3"], ["a=1", "b=x", "c=4"], ["a=2", "b=x", "c=3"], ["a=2", "b=x", "c=4"]]
 
