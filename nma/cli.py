@@ -21,6 +21,7 @@ import os
 import shutil
 import signal
 import sys
+import tempfile
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -171,8 +172,8 @@ def _bad_input(exc: Exception, overrides: list[str] = ()) -> str:
 def writable_dir(path: Path, what: str) -> None:
     """`path` is, or can be made, a directory this process writes (checked before Hydra creates it):
     ConfigError where the path is wrong (a file on the way), PermissionError (exit 3) where the system
-    refuses.  A missing directory is made and removed again: permission bits alone do not answer for
-    root, a read-only mount or /sys."""
+    refuses.  Where the path does not exist yet, a directory is made and removed again where it would
+    begin: permission bits alone do not answer for root, a read-only mount or /proc."""
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{what}={path} is an existing file, not a directory")
     chain = [path, *path.absolute().parents]
@@ -182,12 +183,10 @@ def writable_dir(path: Path, what: str) -> None:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise PermissionError(f"{what}={path} cannot be written: {existing} is not writable by this user")
     if existing != path:
-        try:
-            path.mkdir(parents=True)
+        try:  # a directory of a unique name where the run's would begin (MPI ranks check at once), removed again
+            os.rmdir(tempfile.mkdtemp(prefix=".nma-check-", dir=existing))
         except OSError as err:
             raise PermissionError(f"{what}={path} cannot be created: {err.strerror or err}") from None
-        for made in chain[:chain.index(existing)]:  # leave no trace
-            made.rmdir()
 
 
 def _remove_if_empty(run_dir: Path | None) -> None:
