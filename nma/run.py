@@ -83,7 +83,7 @@ def main() -> None:
     from .train.mpi import World
 
     world = World()
-    built: dict[str, None] = {}  # the scenes and fidelities a sweep's jobs were discretised at
+    built: set[str] = set()  # the scenes and fidelities a sweep's jobs were discretised at
 
     def check(cfg, hydra_cfg, multirun: bool):
         settings = validate(cfg)
@@ -94,7 +94,7 @@ def main() -> None:
                 from .geometry.scene import scene_from_config
 
                 discretise(scene_from_config(settings.scene), settings.fidelity)
-                built[key] = None
+                built.add(key)
         world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
         if settings.trainer.init_from:
             check_init_from(Path(settings.trainer.init_from), settings)

@@ -119,7 +119,7 @@ def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: j
     W = jnp.vectorize(lambda f: neo_hookean(f, mu, 0.0 if mixed else kappa), signature="(2,2)->()")(safe)
     energy = jnp.sum(quad.weights * W)
     if mixed:
-        area, theta = _mean_dilatation(quad, det2(safe))
+        area, theta = _mean_dilatation(quad, jnp.where(J > 0, J, 1.0))  # J of `safe`, without recomputing it
         energy = energy + jnp.sum(area * 0.5 * kappa * jnp.log(theta) ** 2)
     j_hat = disc.fidelity.inversion_barrier
     if j_hat > 0:
