@@ -90,7 +90,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
     """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws."""
     import jax
 
-    from nma import config, tasks  # noqa: F401  (registers the tasks)
+    from nma import config, tasks  # noqa: F401  (declares the tasks)
     from nma.geometry.discretise import discretise
     from nma.geometry.scene import scene_from_config
     from nma.mechanics.material import material

@@ -1,6 +1,12 @@
-"""Name -> factory registries for the components chosen in YAML (tasks, models, linear solvers)."""
+"""Name -> factory registries for the components chosen in YAML (tasks, models, linear solvers).
+
+A factory is registered with its function, or declared by its import path ("module:attribute") and
+imported when first asked for: the config layer learns every task's name and schema without importing
+the task's code (and JAX with it).
+"""
 from __future__ import annotations
 
+from importlib import import_module
 from typing import Callable, Generic, TypeVar
 
 from .errors import ConfigError
@@ -11,20 +17,32 @@ T = TypeVar("T")
 class Registry(Generic[T]):
     def __init__(self, kind: str):
         self.kind = kind
-        self._items: dict[str, Callable[..., T]] = {}
+        self._items: dict[str, Callable[..., T] | str] = {}
+        self.schemas: dict[str, type] = {}  # name -> the schema of its settings, where the component has one
 
-    def register(self, name: str):
+    def register(self, name: str, schema: type | None = None):
+        """Decorator: `factory` under `name`, and `schema` (its settings' dataclass) beside it."""
         def deco(factory):
-            if name in self._items:
-                raise ValueError(f"{self.kind} {name!r} is registered twice")
-            self._items[name] = factory
+            self.declare(name, factory, schema)
             return factory
         return deco
+
+    def declare(self, name: str, factory: Callable[..., T] | str, schema: type | None = None) -> None:
+        """`factory` a callable, or the path "module:attribute" of one, imported on first use."""
+        if name in self._items:
+            raise ValueError(f"{self.kind} {name!r} is registered twice")
+        self._items[name] = factory
+        if schema is not None:
+            self.schemas[name] = schema
 
     def get(self, name: str) -> Callable[..., T]:
         if name not in self._items:
             raise ConfigError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
-        return self._items[name]
+        factory = self._items[name]
+        if isinstance(factory, str):
+            module, _, attribute = factory.partition(":")
+            factory = self._items[name] = getattr(import_module(module), attribute)
+        return factory
 
 
 
@@ -37,7 +55,7 @@ PLUGIN_GROUP = "nma.tasks"  # entry points of installed packages whose modules r
 
 def load_plugins() -> None:
     """Import the module of every `nma.tasks` entry point of an installed package: a task written outside
-    nma registers itself there (its factory in TASKS, its schema in nma.schema.TASK_SCHEMAS)."""
+    nma registers itself there, its factory with its schema (`@TASKS.register(name, schema=...)`)."""
     from importlib.metadata import entry_points
 
     for ep in entry_points(group=PLUGIN_GROUP):

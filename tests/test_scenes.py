@@ -170,7 +170,7 @@ def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):
     import jax.numpy as jnp
 
     from nma.mechanics.material import material
-    from nma import tasks  # noqa: F401  (registers the tasks)
+    from nma import tasks  # noqa: F401  (declares the tasks)
     from nma.registry import TASKS
     from nma.schema import TASK_SCHEMAS, build
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import compose_cfg
-from nma import tasks  # noqa: F401  (registers the tasks)
+from nma import tasks  # noqa: F401  (declares the tasks)
 from nma.registry import TASKS
 from nma.train.runs import validate
 
@@ -109,7 +109,7 @@ import jax
 import jax.numpy as jnp
 
 from nma.registry import TASKS
-from nma.schema import TASK_SCHEMAS, TaskConfig
+from nma.tasks.schemas import TaskConfig
 from nma.tasks.base import Task
 
 
@@ -142,10 +142,7 @@ class Lift(Task):
         return jnp.linspace(-0.5, 0.5, 3)[:, None]
 
 
-TASK_SCHEMAS["strip"] = LiftConfig
-
-
-@TASKS.register("strip")
+@TASKS.register("strip", schema=LiftConfig)
 def lift(cfg, sim):
     t = sim.disc.tracked_points(sim.reference_points(sim.init_params()))
     return Lift(cfg, 0.5 * (t["top_left"][1:] + t["top_right"][1:]))

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from .commands import EvaluateConfig, ExportConfig, OutputConfig, SimulateConfig, TrainConfig
 from .compose import build, check_keys, explain, register
-from .fields import Schema, bounded, choice
+from ..settings import Schema, bounded, choice
 from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
 from .scene import GroupConfig, SceneConfig, SupportConfig
-from .tasks import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, ShapeMatchingTask, SpecTask, TaskConfig,
+from ..tasks.schemas import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, ShapeMatchingTask, SpecTask, TaskConfig,
                     TranslationTask, task_schema)
 from .training import LoggerConfig, LrScale, ModelConfig, OptimConfig, TrainerConfig
 

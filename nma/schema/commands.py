@@ -8,10 +8,10 @@ from typing import Any, ClassVar, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
-from .fields import Schema, bounded
+from ..settings import Schema, bounded
 from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
 from .scene import SceneConfig
-from .tasks import TASK_SCHEMAS, TaskConfig
+from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
 from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
 
 

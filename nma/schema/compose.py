@@ -7,8 +7,8 @@ from typing import Any
 
 from ..errors import ConfigError
 from .commands import EvaluateConfig, ExportConfig, SimulateConfig, TrainConfig
-from .fields import _kind
-from .tasks import TASK_SCHEMAS
+from ..settings import _kind
+from ..tasks.schemas import TASK_SCHEMAS
 
 
 def build(schema: type, values: Any = None):

@@ -6,7 +6,7 @@ from typing import ClassVar, Optional
 
 from ..mechanics.options import FORMULATIONS, ContactSettings
 from ..solver.options import NewtonOptions
-from .fields import Schema, bounded, choice
+from ..settings import Schema, bounded, choice
 
 
 @dataclass

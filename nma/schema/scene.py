@@ -9,7 +9,7 @@ from typing import Any, ClassVar, Dict, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
-from .fields import Schema, _points, bounded, choice
+from ..settings import Schema, _points, bounded, choice
 
 
 @dataclass

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, List, Optional
 
-from .fields import Schema, bounded, choice
+from ..settings import Schema, bounded, choice
 
 
 @dataclass

@@ -1,2 +1,6 @@
-from . import digital_mnist, rotation, shape_matching, spec, translation  # noqa: F401  (registers the tasks)
-from .base import Task  # noqa: F401
+"""The tasks: what the network is asked and how it is scored (the protocol: nma.tasks.base).
+
+Importing this package declares every built-in task with its schema (nma.tasks.schemas) and imports no
+task's code: `nma.registry.TASKS.get(name)` imports it on first use.
+"""
+from . import schemas  # noqa: F401  (declares the built-in tasks)

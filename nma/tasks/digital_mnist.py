@@ -20,9 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.bspline import DESIGN_CTRL, basis_matrix
-from ..registry import TASKS
 from ..errors import ConfigError
-from ..schema import DigitalMNISTTask
+from .schemas import DigitalMNISTTask
 from .base import Task
 
 # Segments 1 lower-left, 2 upper-left, 3 lower-right, 4 upper-right (verticals), 5 bottom, 6 middle,
@@ -205,7 +204,6 @@ class DigitalMNIST(Task):
         return self._eval[np.asarray(self.one_of_each_digit(self._eval, n))]
 
 
-@TASKS.register("digital_mnist")
 def digital_mnist(cfg: DigitalMNISTTask, sim) -> DigitalMNIST:
     if "colours" not in sim.init_params():
         raise ConfigError(f"task=digital_mnist needs a scene with colour nets; scene {sim.disc.spec.name} has none")

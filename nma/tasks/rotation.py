@@ -5,8 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..registry import TASKS
-from ..schema import RotationTask
+from .schemas import RotationTask
 from .base import Task
 
 
@@ -75,5 +74,5 @@ def _rotation(name):
     return build
 
 
-TASKS.register("rotation_single")(_rotation("rotation_single"))
-TASKS.register("rotation_double")(_rotation("rotation_double"))
+rotation_single = _rotation("rotation_single")
+rotation_double = _rotation("rotation_double")

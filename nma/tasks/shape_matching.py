@@ -17,8 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..registry import TASKS
-from ..schema import ShapeMatchingTask
+from .schemas import ShapeMatchingTask
 from .base import Task
 
 CURVE_SAMPLES = 1000  # angles at which a target curve is traced before arc-length resampling
@@ -127,7 +126,6 @@ class ShapeMatching(Task):
         return fit_onto(out, self.targets(t))
 
 
-@TASKS.register("shape_matching")
 def shape_matching(cfg: ShapeMatchingTask, sim) -> ShapeMatching:
     boundary = sim.disc.pore_boundary()
     return ShapeMatching(cfg, boundary, len(boundary[0]))

@@ -20,8 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..registry import TASKS
-from ..schema import SpecTask as SpecConfig
+from .schemas import SpecTask as SpecConfig
 from .base import Task
 
 
@@ -121,7 +120,6 @@ class SpecTask(Task):
         return jnp.concatenate([up, up[-2:0:-1]])[:n, None]
 
 
-@TASKS.register("spec")
 def spec(cfg: SpecConfig, sim) -> SpecTask:
     X = sim.reference_points(sim.init_params())
     tracked = sim.disc.tracked_points(X)

@@ -5,8 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..registry import TASKS
-from ..schema import TranslationTask
+from .schemas import TranslationTask
 from .base import Task
 
 
@@ -58,7 +57,6 @@ class Translation(Task):
         return self.half_width * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)
 
 
-@TASKS.register("translation")
 def translation(cfg: TranslationTask, sim) -> Translation:
     X = sim.reference_points(sim.init_params())
     start = sim.disc.tracked_points(X)["pointer"]

@@ -1,4 +1,7 @@
-"""The tasks' settings, one schema per task (TASK_SCHEMAS: the task name -> its schema)."""
+"""Every built-in task's settings, one schema per task, declared with the task in the registry
+(`TASKS.declare(name, "module:factory", schema)`): the config layer reads a task's schema here without
+importing the task's code.  A task from outside nma registers its own (`@TASKS.register(name, schema=...)`).
+TASK_SCHEMAS: the task name -> its schema."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -7,7 +10,8 @@ from typing import Any, ClassVar, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
-from .fields import Schema, bounded, choice
+from ..registry import TASKS
+from ..settings import Schema, bounded, choice
 
 
 @dataclass
@@ -145,9 +149,13 @@ class SpecTask(TaskConfig):
                               f"points are {sorted(scene.tracked)} (scene.tracked)")
 
 
-TASK_SCHEMAS: dict[str, type] = {"translation": TranslationTask, "rotation_single": RotationTask,
-                                 "rotation_double": RotationTask, "shape_matching": ShapeMatchingTask,
-                                 "digital_mnist": DigitalMNISTTask, "spec": SpecTask}
+TASKS.declare("translation", "nma.tasks.translation:translation", TranslationTask)
+TASKS.declare("rotation_single", "nma.tasks.rotation:rotation_single", RotationTask)
+TASKS.declare("rotation_double", "nma.tasks.rotation:rotation_double", RotationTask)
+TASKS.declare("shape_matching", "nma.tasks.shape_matching:shape_matching", ShapeMatchingTask)
+TASKS.declare("digital_mnist", "nma.tasks.digital_mnist:digital_mnist", DigitalMNISTTask)
+TASKS.declare("spec", "nma.tasks.spec:spec", SpecTask)
+TASK_SCHEMAS: dict[str, type] = TASKS.schemas
 
 
 def task_schema(task: dict, defaults: list | None = None) -> type:

@@ -1,5 +1,6 @@
-"""Field machinery of the config schema: a field's allowed range or choices beside its default
-(`bounded`, `choice`), and `Schema`, the base that checks every field on construction."""
+"""The machinery of settings, shared by the config schema (nma.schema) and the tasks' own schemas: a
+field's allowed range or choices beside its default (`bounded`, `choice`), and `Schema`, the base that
+checks every field on construction."""
 from __future__ import annotations
 
 import math
@@ -7,7 +8,7 @@ from dataclasses import MISSING as DC_MISSING
 from dataclasses import field, fields
 from typing import Any, ClassVar, Dict, List, get_args, get_origin, get_type_hints
 
-from ..errors import ConfigError
+from .errors import ConfigError
 
 
 def _parse_range(spec: str) -> tuple[float, float, bool, bool]:
