@@ -31,12 +31,12 @@ def stats(xs):
 
 def build(scene, linear="pardiso"):
     from nma import config
-    from nma.geometry.discretise import Fidelity, discretise
-    from nma.geometry.scene import scene_from_config
+    from nma.geometry.discretise import Resolution, discretise
+    from nma.schema import scene_from_config
     from nma.simulator import Simulator
     from nma.solver.options import NewtonOptions
 
-    disc = discretise(scene_from_config(config.load("scene", scene)), Fidelity(5, 5))
+    disc = discretise(scene_from_config(config.load("scene", scene)), Resolution(5, 5))
     return Simulator(disc, linear, NewtonOptions(rtol=1e-10))
 
 

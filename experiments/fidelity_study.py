@@ -92,7 +92,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
     from nma.geometry.discretise import discretise
-    from nma.geometry.scene import scene_from_config
+    from nma.schema import scene_from_config
     from nma.mechanics.material import material
     from nma.registry import TASKS
     from nma.schema import TASK_SCHEMAS, Fidelity, build

@@ -53,7 +53,7 @@ def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
     t0 = time.perf_counter()
     ev = trainer.evaluate().record
     task = trainer.task
-    return {"fidelity": fidelity_record(trainer.sim.disc),
+    return {"fidelity": fidelity_record(trainer.sim.disc, fidelity),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
             **{k: ev[k] for k in ("invalid_states", "checked_states", "min_J", "min_gap", "invalid_samples")},
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}

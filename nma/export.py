@@ -59,7 +59,7 @@ def trained_outline(run_dir) -> Outline:
 
     configure_jax()
     from .geometry.discretise import discretise
-    from .geometry.scene import scene_from_config
+    from .schema import scene_from_config
     from .train.runs import load_run
     from .schema import Fidelity
 
@@ -198,7 +198,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     import matplotlib.pyplot as plt
 
     from .geometry.discretise import discretise
-    from .geometry.scene import scene_from_config
+    from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .mechanics.material import material
     from .train.runs import load_run

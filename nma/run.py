@@ -49,7 +49,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
-                                       "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc),
+                                       "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc, s.fidelity),
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",
@@ -91,7 +91,7 @@ def main() -> None:
             key = repr((settings.scene, settings.fidelity))
             if key not in built:
                 from .geometry.discretise import discretise
-                from .geometry.scene import scene_from_config
+                from .schema import scene_from_config
 
                 discretise(scene_from_config(settings.scene), settings.fidelity)
                 built.add(key)

@@ -36,6 +36,12 @@ def _in_range(x: float, spec: str) -> bool:
     return (x > lo if lo_open else x >= lo) and (x < hi if hi_open else x <= hi)
 
 
+def check_range(path: str, value: float, spec: str) -> None:
+    """ConfigError naming `path` unless the number `value` lies in the interval `spec`."""
+    if not _in_range(float(value), spec):
+        raise ConfigError(f"{path} must be {_kind(float)} in {spec}, got {value!r}")
+
+
 def _kind(tp) -> str:
     return {int: "an integer", float: "a finite number", bool: "true or false", str: "a string"}.get(tp, str(tp))
 

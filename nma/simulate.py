@@ -49,7 +49,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     import numpy as np
 
     from .geometry.discretise import discretise
-    from .geometry.scene import scene_from_config
+    from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .io.fields import write_fields
     from .mechanics.material import material

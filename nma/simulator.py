@@ -17,8 +17,7 @@ import numpy as np
 
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
-from .geometry.scene import scene_config, scene_from_config
-from .schema import ContactConfig, Fidelity, SolverConfig, build
+from .schema import ContactConfig, Fidelity, SolverConfig, build, scene_config, scene_from_config
 from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend

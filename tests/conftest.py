@@ -39,11 +39,11 @@ def simulator():
 def barrier_simulator():
     """The translation scene at 5 x 2 with the inversion barrier (J_hat 0.05), Newton converged to 1e-12
     (tight enough for central differences of its solution); shared by the barrier and gradient tests."""
-    from nma.geometry.discretise import Fidelity, discretise
-    from nma.geometry.scene import scene_from_config
+    from nma.geometry.discretise import Resolution, discretise
+    from nma.schema import scene_from_config
     from nma.solver.options import NewtonOptions
 
-    disc = discretise(scene_from_config(config.load("scene", "translation")), Fidelity(5, 2, inversion_barrier=0.05))
+    disc = discretise(scene_from_config(config.load("scene", "translation")), Resolution(5, 2, inversion_barrier=0.05))
     return Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12))
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from nma import config
 from nma.geometry.discretise import discretise
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.geometry.validity import StateChecker
 from nma.mechanics.energy import deformation_gradient, energy_force_tangents, max_step, quadrature, strain_energy
 from nma.mechanics.material import det2, material

@@ -13,7 +13,7 @@ import pytest
 from nma import config
 from nma.errors import ConfigError
 from nma.geometry.discretise import discretise
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.geometry.validity import StateChecker
 from nma.mechanics import contact
 from nma.mechanics.energy import energy_force_tangents, quadrature

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from nma.geometry.discretise import Fidelity, discretise
+from nma.geometry.discretise import Resolution, discretise
 from nma.geometry.scene import cooks_membrane
 from nma.mechanics.material import from_lame
 from nma.simulator import Simulator
@@ -20,7 +20,7 @@ MAT = from_lame(mu=80.194, kappa=400889.8)
 
 
 def tip_displacement(ctrl: int, formulation: str = "displacement") -> float:
-    sim = Simulator(discretise(cooks_membrane(), Fidelity(ctrl, 3), formulation=formulation), "pardiso")
+    sim = Simulator(discretise(cooks_membrane(), Resolution(ctrl, 3), formulation=formulation), "pardiso")
     sol = sim.solve({}, jnp.zeros(0), MAT)
     return float(sim.tracked(sim.reference_points({}), sol.u)["tip"][1] - 60.0)
 

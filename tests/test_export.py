@@ -15,7 +15,7 @@ from nma.export import ExportConfig, export, fabrication_report, validate, write
 from nma.geometry.bspline import DESIGN_CTRL, basis_matrix
 from nma.geometry.discretise import discretise
 from nma.geometry.outline import Outline, bezier_segments
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.errors import ConfigError
 from nma.schema import Fidelity
 from nma.train import checkpoint

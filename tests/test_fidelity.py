@@ -67,7 +67,7 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     run's metrics record it and why; a tolerance no setting meets fails before any work."""
     from nma.fidelity import choice_of
     from nma.geometry.discretise import discretise
-    from nma.geometry.scene import scene_from_config
+    from nma.schema import scene_from_config
     from nma.train.runs import fidelity_record, fingerprint, validate
     from conftest import compose_cfg
 
@@ -91,7 +91,7 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
 
 def test_random_design_stays_in_its_box_with_convex_cells():
     from nma.geometry.design import MIN_TURN
-    from nma.geometry.scene import scene_from_config
+    from nma.schema import scene_from_config
     from nma.geometry.design import make_design
 
     design = make_design(scene_from_config(config.load("scene", "shape_matching")))

@@ -8,7 +8,7 @@ import pytest
 from nma import config
 from nma.geometry.discretise import discretise
 from nma.geometry.sampling import sample_colours, sample_positions
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
 from nma.solver.options import NewtonOptions

@@ -3,7 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nma.geometry.discretise import Fidelity, discretise
+from nma.geometry.discretise import Resolution, discretise
 from nma.geometry.scene import Group, PatchSceneSpec, bilinear_net
 from nma.mechanics.energy import force_and_tangents, quadrature, strain_energy
 from nma.mechanics.material import material, neo_hookean, piola, tangent
@@ -81,7 +81,7 @@ def _patch_test_scene(F0):
     net = bilinear_net([(0, 0), (4, 0), (4, 3), (0, 3)])
     net[2, 2] += (0.4, -0.3)  # interior distortion: the map is curved, the exact solution stays affine
     net[1, 3] += (-0.2, 0.25)
-    probe = discretise(PatchSceneSpec("probe", net[None]), Fidelity(8, 3))
+    probe = discretise(PatchSceneSpec("probe", net[None]), Resolution(8, 3))
     X = np.asarray(probe.reference_points({}))
     on_edge = (np.isclose(X[:, 0], 0) | np.isclose(X[:, 0], 4) | np.isclose(X[:, 1], 0) | np.isclose(X[:, 1], 3))
     groups = []
@@ -94,7 +94,7 @@ def _patch_test_scene(F0):
 def test_patch_test_reproduces_homogeneous_stretch(nu):
     F0 = np.array([[1.25, 0.1], [-0.05, 0.85]])
     spec, n = _patch_test_scene(F0)
-    sim = Simulator(discretise(spec, Fidelity(8, 3)), "pardiso")
+    sim = Simulator(discretise(spec, Resolution(8, 3)), "pardiso")
     sol = sim.solve({}, jnp.ones(n), material(1.0, nu))
     exact = np.asarray(sim.reference_points({})) @ (F0 - np.eye(2)).T
     np.testing.assert_allclose(sol.u, exact, atol=1e-10)

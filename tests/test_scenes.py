@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from nma import config
-from nma.geometry.discretise import Fidelity, discretise
-from nma.geometry.scene import scene_from_config
+from nma.geometry.discretise import Resolution, discretise
+from nma.schema import scene_from_config
 from nma.mechanics.energy import quadrature
 
 # Patch, point and DOF counts of the authors' five scenes, measured by building them with their code
@@ -106,7 +106,7 @@ def test_supports_hold_a_body_without_pins(simulator):
     cfg = {"name": "strip", "cells": ["PP"], "groups": [{**PRESS, "segment": [[10, 0], [10, 5]]}],
            "supports": [{"segment": [[0, 0], [0, 5]], "kind": "clamped"},
                         {"segment": [[5, 0], [10, 0]], "kind": "sliding"}]}
-    sim = Simulator(discretise(scene_from_config(cfg), Fidelity(5, 3)), "superlu")
+    sim = Simulator(discretise(scene_from_config(cfg), Resolution(5, 3)), "superlu")
     X = np.asarray(sim.reference_points(sim.init_params()))
     u = np.asarray(sim.solve(sim.init_params(), jnp.array([0.5]), material(0.07, 0.3)).u)
     left, bottom = np.abs(X[:, 0]) < 1e-9, (np.abs(X[:, 1]) < 1e-9) & (X[:, 0] > 5 - 1e-9)
@@ -116,6 +116,8 @@ def test_supports_hold_a_body_without_pins(simulator):
 
 
 def test_fidelity_validation():
+    from nma.schema import Fidelity
+
     with pytest.raises(ValueError, match="quad_points"):
         Fidelity(5, 0)
     with pytest.raises(ValueError, match="ctrl_per_patch"):
@@ -124,7 +126,7 @@ def test_fidelity_validation():
 
 def test_refined_discretisation_keeps_geometry():
     spec = scene_from_config(config.load("scene", "translation"))
-    coarse, fine = discretise(spec, Fidelity(5, 3)), discretise(spec, Fidelity(8, 3))
+    coarse, fine = discretise(spec, Resolution(5, 3)), discretise(spec, Resolution(8, 3))
     from nma.geometry.sampling import sample_positions
     Xc = coarse.reference_points(coarse.init_params())
     Xf = fine.reference_points(fine.init_params())

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nma.geometry.discretise import discretise
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
 from nma.errors import SolverError

@@ -7,7 +7,7 @@ import pytest
 
 from nma import config
 from nma.geometry.discretise import discretise
-from nma.geometry.scene import scene_from_config
+from nma.schema import scene_from_config
 from nma.geometry.validity import StateChecker
 from nma.schema import Fidelity
 from nma.mechanics.energy import deformation_gradient, quadrature

@@ -17,8 +17,8 @@ from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, g
                       refinement_operator)
 from ..errors import ConfigError
 from ..mechanics.options import FORMULATIONS
-from ..schema import Fidelity
 from .design import make_design
+from .options import Resolution
 from .scene import PatchSceneSpec, SceneSpec
 
 
@@ -26,7 +26,7 @@ from .scene import PatchSceneSpec, SceneSpec
 class Discretisation:
     spec: SceneSpec | PatchSceneSpec
     design: object
-    fidelity: Fidelity
+    fidelity: Resolution
     n_points: int
     patch_points: np.ndarray      # (P, m*m) merged point index of every analysis control point
     representative: np.ndarray    # (n_points,) a flat (patch * m*m + local) index for each point
@@ -155,14 +155,16 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
     return -1, np.zeros(2)
 
 
-def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity(), contact=None,
+def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
                formulation: str = "displacement") -> Discretisation:
-    """The analysis model of a scene at a concrete `fidelity` (its control points and Gauss points per
-    patch; fidelity=auto is resolved by the command, nma.fidelity.resolve, before it gets here), with the
+    """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its fields: the
+    control points and Gauss points per patch, the inversion barrier; fidelity=auto is resolved by the
+    command, nma.fidelity.resolve, before it gets here; None: the paper's 5 x 5), with the
     pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the strain
     energy's `formulation` (one of nma.mechanics.options.FORMULATIONS)."""
     if formulation not in FORMULATIONS:
         raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
+    fidelity = Resolution.of(fidelity)
     design = make_design(spec)
     m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
     R = refinement_operator(m)
@@ -259,4 +261,4 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity: Fidelity = Fidelity()
     return replace(disc, contact=build(oriented_loops(disc, points)[1:], points, contact))
 
 
-__all__ = ["Fidelity", "Discretisation", "discretise", "DESIGN_CTRL"]
+__all__ = ["Resolution", "Discretisation", "discretise", "DESIGN_CTRL"]

@@ -11,11 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .bspline import basis_matrix, gauss_legendre_01
-from .discretise import Discretisation
+
+if TYPE_CHECKING:  # discretise builds the contact model from the loops found here
+    from .discretise import Discretisation
 
 def spans(loop: np.ndarray) -> int:
     """Knot spans per edge of a loop (n_edges, m, 2): m - 2."""

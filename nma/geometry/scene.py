@@ -1,18 +1,17 @@
 """Declarative scenes: what a structure is, as data.
 
 A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned points, supports, tracked points, the
-movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema/scene.py),
-so a bad scene fails before any work starts.  A `PatchSceneSpec` is a general multi-patch
+movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema/scene.py:
+`SceneConfig.spec()`, or `nma.schema.scene_from_config` of a mapping), so a bad scene fails before any
+work starts.  A `PatchSceneSpec` is a general multi-patch
 geometry given by its design nets (Cook's membrane is one patch).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
-
-from ..schema import SceneConfig, build
 
 POROUS, SOLID, EMPTY = "P", "S", "."
 
@@ -85,31 +84,6 @@ class PatchSceneSpec:
     @property
     def n_actuations(self) -> int:
         return 1 + max((g.actuation for g in self.groups), default=-1)
-
-
-def scene_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneConfig:
-    """A checked SceneConfig from itself or a mapping (cells as one string or a list of rows)."""
-    if isinstance(cfg, Mapping) and not isinstance(cfg.get("cells", ""), str):
-        cfg = {**cfg, "cells": "\n".join(cfg["cells"])}
-    return build(SceneConfig, cfg)
-
-
-def scene_from_config(cfg: SceneConfig | Mapping[str, Any]) -> SceneSpec:
-    """Build a SceneSpec from a checked SceneConfig or a mapping (checked here); cells top row first."""
-    c = scene_config(cfg)
-    pair = lambda v: (float(v[0]), float(v[1]))
-    groups = tuple(Group(g.name, (pair(g.segment[0]), pair(g.segment[1])), g.actuation, pair(g.direction))
-                   for g in c.groups)
-    return SceneSpec(
-        name=c.name, x_breaks=tuple(c.breaks("x")), y_breaks=tuple(c.breaks("y")),
-        cells=tuple(reversed(c.rows())), groups=groups,
-        pinned=tuple(pair(p) for p in c.pinned),
-        tracked={k: pair(v) for k, v in c.tracked.items()},
-        radii_init=c.radii_init, radii_bounds=pair(c.radii_bounds), corner_box=c.corner_box,
-        locked_nodes=tuple((int(i), int(j)) for i, j in c.locked_nodes),
-        central_pore=tuple((int(i), int(j)) for i, j in c.central_pore),
-        central_radii_init=c.central_radii_init, colours=c.colours,
-        supports=tuple(Support((pair(t.segment[0]), pair(t.segment[1])), t.fixed_components()) for t in c.supports))
 
 
 def bilinear_net(corners: Sequence[Sequence[float]], n: int = 5) -> np.ndarray:

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ..schema import MaterialConfig
+from ..settings import check_range
+from .options import MATERIAL_RANGES
 
 
 def material(E: float, nu: float) -> jnp.ndarray:
-    """[E, nu] as a float64 array, checked against the schema's ranges (nma/schema/physics.py)."""
-    MaterialConfig(float(E), float(nu))
+    """[E, nu] as a float64 array, checked against the material's ranges (MATERIAL_RANGES)."""
+    for name, value in (("E", E), ("nu", nu)):
+        check_range(f"material.{name}", float(value), MATERIAL_RANGES[name])
     return jnp.array([E, nu], dtype=jnp.float64)
 
 

@@ -6,6 +6,9 @@ from dataclasses import dataclass
 # how the strain energy treats volume change (nma.mechanics.energy): at every Gauss point, or through each
 # element's mean dilatation (locking-free as nu -> 0.5)
 FORMULATIONS = ("displacement", "mixed")
+# the Neo-Hookean material's admissible moduli: nu = 0.5 is incompressible, which a displacement model
+# cannot represent
+MATERIAL_RANGES = {"E": "(0, inf)", "nu": "(-1, 0.5)"}
 
 
 @dataclass(frozen=True)

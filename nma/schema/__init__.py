@@ -12,7 +12,7 @@ This package imports no JAX: the commands validate a composed config before any 
 from __future__ import annotations
 
 from .commands import EvaluateConfig, ExportConfig, OutputConfig, SimulateConfig, TrainConfig
-from .compose import build, check_keys, explain, register
+from .compose import build, check_keys, explain, register, scene_config, scene_from_config
 from ..settings import Schema, bounded, choice
 from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
 from .scene import GroupConfig, SceneConfig, SupportConfig
@@ -21,7 +21,7 @@ from ..tasks.schemas import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, Shape
 from .training import LoggerConfig, LrScale, ModelConfig, OptimConfig, TrainerConfig
 
 __all__ = ["EvaluateConfig", "ExportConfig", "OutputConfig", "SimulateConfig", "TrainConfig", "build", "check_keys",
-           "explain", "register", "Schema", "bounded", "choice", "ContactConfig", "Fidelity", "MaterialConfig",
+           "explain", "register", "scene_config", "scene_from_config", "Schema", "bounded", "choice", "ContactConfig", "Fidelity", "MaterialConfig",
            "SolverConfig", "GroupConfig", "SceneConfig", "SupportConfig", "TASK_SCHEMAS", "DigitalMNISTTask",
            "RotationTask", "ShapeMatchingTask", "SpecTask", "TaskConfig", "task_schema", "TranslationTask", "LoggerConfig", "LrScale",
            "ModelConfig", "OptimConfig", "TrainerConfig"]

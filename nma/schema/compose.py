@@ -3,10 +3,13 @@ OmegaConf's errors in one line, the schemas in Hydra's ConfigStore."""
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from typing import Any
 
 from ..errors import ConfigError
+from ..geometry.scene import SceneSpec
 from .commands import EvaluateConfig, ExportConfig, SimulateConfig, TrainConfig
+from .scene import SceneConfig
 from ..settings import _kind
 from ..tasks.schemas import TASK_SCHEMAS
 
@@ -25,6 +28,18 @@ def build(schema: type, values: Any = None):
         raise
     except Exception as exc:  # OmegaConf's type / unknown-key / missing-value errors
         raise ConfigError(explain(exc, getattr(schema, "prefix", ""))) from None
+
+
+def scene_config(cfg: Any) -> SceneConfig:
+    """A checked SceneConfig from itself or a mapping (cells as one string or a list of rows)."""
+    if isinstance(cfg, Mapping) and not isinstance(cfg.get("cells", ""), str):
+        cfg = {**cfg, "cells": "\n".join(cfg["cells"])}
+    return build(SceneConfig, cfg)
+
+
+def scene_from_config(cfg: Any) -> SceneSpec:
+    """The SceneSpec of a checked SceneConfig or of a mapping (checked here), cells top row first."""
+    return scene_config(cfg).spec()
 
 
 def check_keys(node, path: str = "") -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import ClassVar, Optional
 
-from ..mechanics.options import FORMULATIONS, ContactSettings
+from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
 from ..solver.options import NewtonOptions
 from ..settings import Schema, bounded, choice
 
@@ -13,8 +13,8 @@ from ..settings import Schema, bounded, choice
 class MaterialConfig(Schema):
     """Neo-Hookean material: Young's modulus and Poisson's ratio (the paper: E = 0.07, nu = 0.3)."""
     prefix: ClassVar[str] = "material"
-    E: float = bounded(0.07, "(0, inf)")
-    nu: float = bounded(0.3, "(-1, 0.5)", doc="0.5 is incompressible, which a displacement model cannot represent")
+    E: float = bounded(0.07, MATERIAL_RANGES["E"])
+    nu: float = bounded(0.3, MATERIAL_RANGES["nu"], doc="0.5 is incompressible, which a displacement model cannot represent")
     formulation: str = choice("displacement", FORMULATIONS, doc="mixed: the volume term at each element's mean "
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy)")
 

@@ -9,6 +9,7 @@ from typing import Any, ClassVar, Dict, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
+from ..geometry.scene import Group, SceneSpec, Support
 from ..settings import Schema, _points, bounded, choice
 
 
@@ -137,6 +138,23 @@ class SceneConfig(Schema):
     @property
     def n_actuations(self) -> int:
         return 1 + max((g.actuation for g in self.groups), default=-1)
+
+    def spec(self) -> SceneSpec:
+        """The geometry's own description of this scene (nma.geometry.scene); cells bottom row first."""
+        pair = lambda v: (float(v[0]), float(v[1]))  # noqa: E731
+        return SceneSpec(
+            name=self.name, x_breaks=tuple(self.breaks("x")), y_breaks=tuple(self.breaks("y")),
+            cells=tuple(reversed(self.rows())),
+            groups=tuple(Group(g.name, (pair(g.segment[0]), pair(g.segment[1])), g.actuation, pair(g.direction))
+                         for g in self.groups),
+            pinned=tuple(pair(p) for p in self.pinned),
+            tracked={k: pair(v) for k, v in self.tracked.items()},
+            radii_init=self.radii_init, radii_bounds=pair(self.radii_bounds), corner_box=self.corner_box,
+            locked_nodes=tuple((int(i), int(j)) for i, j in self.locked_nodes),
+            central_pore=tuple((int(i), int(j)) for i, j in self.central_pore),
+            central_radii_init=self.central_radii_init, colours=self.colours,
+            supports=tuple(Support((pair(t.segment[0]), pair(t.segment[1])), t.fixed_components())
+                           for t in self.supports))
 
     def check(self):
         rows = self.rows()

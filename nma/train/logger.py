@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..schema import LoggerConfig
+if TYPE_CHECKING:  # the settings' type, for the reader
+    from ..schema import LoggerConfig
 
 
 class NoLogger:

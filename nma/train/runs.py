@@ -105,11 +105,12 @@ def fingerprint(s: TrainConfig) -> dict:
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
 
 
-def fidelity_record(disc) -> dict:
-    """The discretisation a run used, and with fidelity=auto which measured setting that was and why."""
+def fidelity_record(disc, fidelity) -> dict:
+    """The discretisation a run used, and where its `fidelity` setting was fidelity=auto, which measured
+    setting that was and why."""
     from ..fidelity import choice_of
 
-    choice = choice_of(disc.fidelity, disc.spec.name)
+    choice = choice_of(fidelity, disc.spec.name)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
             "dofs": disc.n_dofs, "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
 
@@ -121,7 +122,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
 
     configure_jax()
     from ..geometry.discretise import discretise
-    from ..geometry.scene import scene_from_config
+    from ..schema import scene_from_config
     from ..mechanics.material import material
     from ..registry import MODELS, TASKS
     from ..simulator import Simulator

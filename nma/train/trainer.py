@@ -19,7 +19,7 @@ import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -29,7 +29,8 @@ from jax.flatten_util import ravel_pytree
 
 from ..errors import ConfigError, Stopped, TrainingError
 from ..geometry.validity import StateChecker, summarise
-from ..schema import OptimConfig, TrainerConfig
+if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads their fields only
+    from ..schema import OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
 from . import checkpoint
 from .mpi import World

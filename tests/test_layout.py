@@ -1,0 +1,91 @@
+"""The package's layers (docs/layout.md): no import circle, the config schema read only by the command
+layer, and a schema that loads without JAX.  Imports are read from the source (ast), the lazy ones inside
+functions included; those under `if TYPE_CHECKING:` are annotations for the reader and do not count."""
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+# the modules that turn checked settings into objects: the commands, their helpers, and the library's
+# front door (Simulator.from_config takes the same settings as the commands)
+COMMAND_LAYER = {"nma.cli", "nma.config", "nma.run", "nma.simulate", "nma.evaluate", "nma.export", "nma.sweep",
+                 "nma.fidelity", "nma.simulator", "nma.train.runs"}
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> set[str]:
+    """The nma modules `path` imports anywhere in its body (a name imported from a package counts as the
+    submodule of that name where there is one)."""
+    me = module_name(path)
+    package = me if path.name == "__init__.py" else me.rpartition(".")[0]
+    found: set[str] = set()
+
+    def is_module(name: str) -> bool:
+        p = ROOT.joinpath(*name.split("."))
+        return p.with_suffix(".py").is_file() or (p / "__init__.py").is_file()
+
+    def visit(nodes):
+        for node in nodes:
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                continue
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names if a.name.split(".")[0] == "nma")
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                    module = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    module = node.module or ""
+                if module.split(".")[0] == "nma":
+                    found.update(f"{module}.{a.name}" if is_module(f"{module}.{a.name}") else module
+                                 for a in node.names)
+            for child in ast.iter_child_nodes(node):
+                visit([child])
+
+    visit(ast.parse(path.read_text()).body)
+    return found
+
+
+GRAPH = {module_name(p): imports(p) for p in (ROOT / "nma").rglob("*.py")}
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    cycles, state, stack = [], {}, []
+
+    def walk(u):
+        state[u] = "open"
+        stack.append(u)
+        for v in sorted(GRAPH.get(u, ())):
+            if state.get(v) == "open":
+                cycles.append(" -> ".join(stack[stack.index(v):] + [v]))
+            elif v not in state:
+                walk(v)
+        stack.pop()
+        state[u] = "done"
+
+    for module in sorted(GRAPH):
+        if module not in state:
+            walk(module)
+    assert not cycles, cycles
+
+
+def test_the_schema_is_read_by_the_command_layer_only():
+    schema = lambda m: m == "nma.schema" or m.startswith("nma.schema.")  # noqa: E731
+    readers = {m for m, deps in GRAPH.items() if not schema(m) and any(map(schema, deps))}
+    assert readers, "the layer test sees no reader of the schema at all: its import parsing is broken"
+    assert readers <= COMMAND_LAYER, sorted(readers - COMMAND_LAYER)
+    upward = {m: sorted(d for d in deps if d in COMMAND_LAYER) for m, deps in GRAPH.items()
+              if m not in COMMAND_LAYER and (schema(m) or m not in readers)}
+    assert not any(upward.values()), {m: d for m, d in upward.items() if d}  # nothing below imports a command
+
+
+def test_the_schema_and_the_task_declarations_load_without_jax():
+    code = "import sys, nma.schema, nma.tasks; assert 'jax' not in sys.modules, 'jax'; print(len(nma.schema.TASK_SCHEMAS))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert int(proc.stdout) >= 6  # the five paper tasks' schemas (two rotations) and the spec's
