@@ -67,6 +67,7 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     run's metrics record it and why; a tolerance no setting meets fails before any work."""
     from nma.fidelity import choice_of
     from nma.geometry.discretise import discretise
+    from nma.geometry.options import Resolution
     from nma.schema import scene_from_config
     from nma.train.runs import fidelity_record, fingerprint, validate
     from conftest import compose_cfg
@@ -78,8 +79,8 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     assert fingerprint(settings)["fidelity"]["ctrl_per_patch"] == expected.fidelity.ctrl_per_patch
     assert choice_of(settings.fidelity, "translation").reason == expected.reason
     disc = discretise(scene_from_config(settings.scene), settings.fidelity)
-    assert disc.fidelity == expected.fidelity
-    record = fidelity_record(disc)
+    assert disc.fidelity == Resolution.of(expected.fidelity)
+    record = fidelity_record(disc, settings.fidelity)
     assert record["auto"]["tolerance"] == 0.6 and record["dofs"] == disc.n_dofs
     assert (record["ctrl_per_patch"], record["quad_points"]) == (expected.fidelity.ctrl_per_patch,
                                                                  expected.fidelity.quad_points)

@@ -155,47 +155,28 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
     return -1, np.zeros(2)
 
 
-def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
-               formulation: str = "displacement") -> Discretisation:
-    """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its fields: the
-    control points and Gauss points per patch, the inversion barrier; fidelity=auto is resolved by the
-    command, nma.fidelity.resolve, before it gets here; None: the paper's 5 x 5), with the
-    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the strain
-    energy's `formulation` (one of nma.mechanics.options.FORMULATIONS)."""
-    if formulation not in FORMULATIONS:
-        raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
-    fidelity = Resolution.of(fidelity)
-    design = make_design(spec)
-    m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
-    R = refinement_operator(m)
-    # topology from a canonical design (mid radii, corners at rest): which points coincide must not
-    # depend on the initial radii, or a radius at a bound would merge a pore's sides into one point
-    canonical = np.asarray(design.nets(design.topology_params()))
-    nets = np.einsum("ia,pabd,jb->pijd", R, canonical, R)  # (P, m, m, 2)
-    P = nets.shape[0]
+def _merge_points(nets: np.ndarray, tol: float):
+    """Coincident control points (C0 interfaces) merged, by connected components of pairs closer than
+    `tol`: the points (numbered in order of first appearance, so following patch order), a flat
+    (patch * m*m + local) index of each, and each patch's point indices (P, m*m)."""
+    P, m = nets.shape[:2]
     flat = nets.reshape(-1, 2)
-    size = np.ptp(flat, axis=0).max()
-    tol = 1e-7 * size
-    # merge coincident control points (C0 interfaces) by connected components of near pairs
     pairs = np.array(sorted(cKDTree(flat).query_pairs(tol)), dtype=np.int64).reshape(-1, 2)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(flat), len(flat)))
     n_points, labels = connected_components(graph, directed=False)
-    # relabel in order of first appearance so point numbering follows patch order
     first = np.full(n_points, len(flat))
     np.minimum.at(first, labels, np.arange(len(flat)))
     order = np.argsort(first)
     relabel = np.empty(n_points, dtype=np.int64)
     relabel[order] = np.arange(n_points)
-    point_of = relabel[labels]
     representative = first[order]
-    points = flat[representative]
-    patch_points = point_of.reshape(P, m * m)
+    return flat[representative], representative, relabel[labels].reshape(P, m * m)
 
-    local, values, grads, weights = element_tables(m, quad)
-    _, _, check_grads, check_weights = check_tables(m)
-    elem_points = patch_points[:, local]  # (P, S2, 9)
 
-    # Dirichlet groups, pinned points, supports (clamped or sliding segments)
+def _dirichlet(spec: SceneSpec | PatchSceneSpec, points: np.ndarray, tol: float):
+    """The prescribed DOFs (flat index point * 2 + component, sorted), the actuation matrix A (u_D = A d)
+    and each actuated group's points: groups move with their actuation; pinned points, supports (clamped
+    or sliding segments) and clamped edges hold their components at 0, winning over a group they touch."""
     n_act = spec.n_actuations
     rows: dict[int, np.ndarray] = {}
     group_points = {}
@@ -226,9 +207,36 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
         for seg in spec.clamped:
             fixed += [(pnt, c) for pnt in np.flatnonzero(_on_segment(points, seg, tol)) for c in (0, 1)]
     for pnt, comp in fixed:
-        rows[2 * pnt + comp] = np.zeros(n_act)  # pinned wins over a group it touches
+        rows[2 * pnt + comp] = np.zeros(n_act)
     dirichlet = np.array(sorted(rows), dtype=np.int64)
-    A = np.array([rows[d] for d in dirichlet]).reshape(len(dirichlet), n_act)
+    return dirichlet, np.array([rows[d] for d in dirichlet]).reshape(len(dirichlet), n_act), group_points
+
+
+def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
+               formulation: str = "displacement") -> Discretisation:
+    """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its fields: the
+    control points and Gauss points per patch, the inversion barrier; fidelity=auto is resolved by the
+    command, nma.fidelity.resolve, before it gets here; None: the paper's 5 x 5), with the
+    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the strain
+    energy's `formulation` (one of nma.mechanics.options.FORMULATIONS)."""
+    if formulation not in FORMULATIONS:
+        raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
+    fidelity = Resolution.of(fidelity)
+    design = make_design(spec)
+    m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
+    R = refinement_operator(m)
+    # topology from a canonical design (mid radii, corners at rest): which points coincide must not
+    # depend on the initial radii, or a radius at a bound would merge a pore's sides into one point
+    canonical = np.asarray(design.nets(design.topology_params()))
+    nets = np.einsum("ia,pabd,jb->pijd", R, canonical, R)  # (P, m, m, 2)
+    tol = 1e-7 * np.ptp(nets.reshape(-1, 2), axis=0).max()
+    points, representative, patch_points = _merge_points(nets, tol)
+    n_points = len(points)
+
+    local, values, grads, weights = element_tables(m, quad)
+    _, _, check_grads, check_weights = check_tables(m)
+    elem_points = patch_points[:, local]  # (P, S2, 9)
+    dirichlet, A, group_points = _dirichlet(spec, points, tol)
     free = np.setdiff1d(np.arange(2 * n_points), dirichlet)
 
     f_ext = np.zeros(2 * n_points)

@@ -223,29 +223,6 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     """Second half of an iteration: take the step du (the solution of K_ff du = rhs)."""
     s, E0, g = lin.state, lin.energy, lin.g
     predictor, dlam = s.predictor, s.dlam
-
-    def energy(u, lam):
-        return eqs.potential(p.quad, u, lam, p.u_D, p.mat)
-
-    def line_search(u, lam, du, E0, slope, alpha0):
-        """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy)."""
-        slack = 1e-12 * jnp.abs(E0) + 1e-300
-
-        def ok(a, Ea):
-            return Ea <= E0 + opts.armijo * a * slope + slack
-
-        def cond(c):
-            a, Ea, k = c
-            return (~ok(a, Ea)) & (k < opts.max_backtracks)
-
-        def body(c):
-            a, _, k = c
-            a = 0.5 * a
-            return a, energy(u + a * du, lam), k + 1
-
-        a, Ea, _ = jax.lax.while_loop(cond, body, (2.0 * alpha0, jnp.inf, 0))
-        return a, ok(a, Ea) & (alpha0 > 0)
-
     finite = jnp.all(jnp.isfinite(du))
     du = jnp.where(finite, du, jnp.zeros_like(du))
     slope = jnp.dot(g, du)
@@ -264,26 +241,64 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     def correct(_):
         # bounded line search on the energy at fixed load
         descent = finite & (slope < 0)
-        a, ok = line_search(s.u, s.lam, step, E0, -jnp.abs(slope), a0)
+        energy = lambda u: eqs.potential(p.quad, u, s.lam, p.u_D, p.mat)  # noqa: E731
+        a, ok = _line_search(energy, opts, s.u, step, E0, -jnp.abs(slope), a0)
         return a, (descent | flipped) & ok, descent
 
     a, ok, descent = jax.lax.cond(predictor, predict, correct, None)
-    step_it = jnp.where(predictor, 0, s.step_it + 1)
-    # corrector steps that the line search or the J > 0 bound keep cutting short, several in a row,
-    # mean the increment is too large for Newton's model: cut it now rather than after max_step_iters
-    damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
-    # a failed load step returns to the last converged state with half the increment;
-    # a non-descent direction is retried with a larger diagonal shift first
-    # ...but a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations from
-    # converging (the residual need not fall monotonically there): it gets them
-    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
-    finishing = (recent <= FINISHING_RESIDUAL * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
-    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
+    step_it, damped, cut = _cut(s, opts, a, ok, flipped, descent)
     moved = ok & ~cut
     u_new = jnp.where(moved, s.u + a * step, jnp.where(cut, s.u_conv, s.u))
     lam_new = jnp.where(moved & predictor, s.lam + a * dlam, jnp.where(cut, s.lam_conv, s.lam))
     dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - s.lam_conv)
     dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a * dlam, dlam))
+    shift_new, shift_memory = _next_shift(s, du, slope, finite, descent, cut)
+    status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
+    return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
+                            step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
+                            damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
+
+
+def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0):
+    """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy): the step and
+    whether it was found."""
+    slack = 1e-12 * jnp.abs(E0) + 1e-300
+
+    def ok(a, Ea):
+        return Ea <= E0 + opts.armijo * a * slope + slack
+
+    def cond(c):
+        a, Ea, k = c
+        return (~ok(a, Ea)) & (k < opts.max_backtracks)
+
+    def body(c):
+        a, _, k = c
+        a = 0.5 * a
+        return a, energy(u + a * du), k + 1
+
+    a, Ea, _ = jax.lax.while_loop(cond, body, (2.0 * alpha0, jnp.inf, 0))
+    return a, ok(a, Ea) & (alpha0 > 0)
+
+
+def _cut(s: _State, opts: NewtonOptions, a, ok, flipped, descent):
+    """Whether the load step fails at this iteration (it returns to the last converged state with half
+    the increment), with the step's iteration count and its run of damped corrector steps."""
+    predictor = s.predictor
+    step_it = jnp.where(predictor, 0, s.step_it + 1)
+    # corrector steps that the line search or the J > 0 bound keep cutting short, several in a row,
+    # mean the increment is too large for Newton's model: cut it now rather than after max_step_iters
+    damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
+    # a non-descent direction is retried with a larger diagonal shift first (no cut)
+    # ...and a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations
+    # from converging (the residual need not fall monotonically there): it gets them
+    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
+    finishing = (recent <= FINISHING_RESIDUAL * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
+    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
+    return step_it, damped, cut
+
+
+def _next_shift(s: _State, du, slope, finite, descent, cut):
+    """The diagonal shift of the next iteration, and the last one that gave a descent direction."""
     # (K + shift) du = -g with slope = g.du >= 0: du^T K du / du^T du = -slope / |du|^2 - shift < 0 bounds
     # the lowest eigenvalue of K from above; the retry's shift must at least exceed it
     dd = jnp.dot(du, du)
@@ -291,11 +306,8 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     retry = jnp.maximum(jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref))
     shift_new = jnp.where(cut, 0.0, jnp.where(
         ~descent, retry, jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
-    shift_memory = jnp.where(descent & ~predictor & (s.shift > 0), s.shift, s.shift_memory)
-    status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
-    return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
-                            step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
-                            damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
+    shift_memory = jnp.where(descent & ~s.predictor & (s.shift > 0), s.shift, s.shift_memory)
+    return shift_new, shift_memory
 
 
 def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
