@@ -35,9 +35,10 @@ simulate:           ## one forward solve of the translation scene
 run:                ## train the default experiment (translation, 100 steps)
 	$(PYTHON) -m nma.run
 
-tutorial:           ## docs/tutorial.md: the strip's task posed in YAML, joint and frozen -> outputs/tutorial/
+tutorial:           ## docs/tutorial.md: the strip's tasks posed in YAML (joint, frozen; a pore on demand) -> outputs/tutorial/
 	$(PYTHON) -m nma.run task=strip_spread scene=strip hydra.run.dir=outputs/tutorial/joint
 	$(PYTHON) -m nma.run task=strip_spread scene=strip trainer.freeze_geometry=true hydra.run.dir=outputs/tutorial/frozen
+	$(PYTHON) -m nma.run task=strip_pore scene=strip hydra.run.dir=outputs/tutorial/pore
 
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
 	$(PYTHON) experiments/repro.py translation --baseline-steps 80

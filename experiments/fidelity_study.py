@@ -115,7 +115,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
         def loss(geom, d, t):
             X = sim.reference_points(geom)
             u, info = sim.equilibrium(X, d, mat)
-            out = task.observe(sim, geom, X, u)
+            out = task.observe(sim, geom, X, u, mat)
             return task.loss(out, t), (out, info)
 
         forward = jax.jit(loss)

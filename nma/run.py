@@ -45,7 +45,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     figures = artefacts.write_figures(run_dir / "figures", trainer, evaluation, X_before, s.trainer.animation_frames)
     if s.trainer.fields == "final":
         artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
-    at_rest, floor = task.rest_metric(sim), task.frozen_floor()
+    at_rest, floor = task.rest_metric(sim, trainer.mat), task.frozen_floor()
     metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,

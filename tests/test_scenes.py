@@ -181,12 +181,13 @@ def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):
     geom = sim.init_params()
     X = sim.reference_points(geom)
     for d in actuations:
-        sol = sim.solve(geom, jnp.asarray(d), material(0.07, 0.3))
-        out = np.asarray(t.observe(sim, geom, X, sol.u))
+        mat = material(0.07, 0.3)
+        sol = sim.solve(geom, jnp.asarray(d), mat)
+        out = np.asarray(t.observe(sim, geom, X, sol.u, mat))
         assert np.max(np.abs(sol.u)) > 0.5  # it does deform
         if task == "translation":
             assert abs(out[1] - float(t.start[1])) < 1e-9
         else:
             np.testing.assert_allclose(out[1, 1] - out[0, 1], 0.0, atol=1e-9)  # the stick stays level
     floor, why = t.frozen_floor()
-    assert why and 0.0 < floor <= t.rest_metric(sim) + 1e-12  # doing nothing is no better than the floor
+    assert why and 0.0 < floor <= t.rest_metric(sim, mat) + 1e-12  # doing nothing is no better than the floor

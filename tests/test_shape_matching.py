@@ -4,6 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from nma.mechanics.material import material
 from nma.schema import ShapeMatchingTask
 from nma.tasks.shape_matching import resample, shape_distance, shape_matching, signed_area
 
@@ -13,7 +14,7 @@ def setup(simulator):
     sim = simulator("shape_matching", quad_points=3)
     task = shape_matching(ShapeMatchingTask(eval_targets=16), sim)
     X = sim.reference_points(sim.init_params())
-    return sim, task, task.observe(sim, sim.init_params(), X, jnp.zeros_like(X))
+    return sim, task, task.observe(sim, sim.init_params(), X, jnp.zeros_like(X), material(0.07, 0.3))
 
 
 def test_targets_are_deterministic_and_fresh_per_key(setup):

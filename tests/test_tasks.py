@@ -18,6 +18,7 @@ from nma.registry import TASKS
 from nma.train.runs import validate
 
 PAPER_AS_SPECS = ["translation", "rotation_single", "rotation_double"]
+MAT = jnp.array([0.07, 0.3])  # the paper's material, [E, nu]
 
 
 def both(name, *overrides):
@@ -40,7 +41,7 @@ def test_paper_tasks_as_specs_are_the_classes(simulator, name):
     np.testing.assert_array_equal(ts, b.sample(jax.random.PRNGKey(3), 16))
     X = sim.reference_points(sim.init_params())
     u = 0.3 * jax.random.normal(jax.random.PRNGKey(5), X.shape)
-    out_a, out_b = a.observe(sim, {}, X, u), b.observe(sim, {}, X, u)
+    out_a, out_b = a.observe(sim, {}, X, u, MAT), b.observe(sim, {}, X, u, MAT)
     np.testing.assert_array_equal(jnp.reshape(out_a, out_b.shape), out_b)
     np.testing.assert_array_equal(jnp.reshape(a.targets(ts), (16, *out_b.shape)), b.targets(ts))
     for f in ("loss", "metric"):
@@ -85,12 +86,90 @@ def test_distance_goal_reads_and_shows_the_distance(simulator):
     assert task.coordinates(task.eval_set())[1] == ["change of distance [length units]"]
 
 
+def test_a_pore_area_goal_is_exact_and_its_cases_or_dataset_are_the_evaluation_set(simulator, tmp_path):
+    """goal pore_area observes the wall of the pore of a cell: its area (each span the Bezier segment
+    through the observed start, midpoint and end) equals the area inside the wall's spline by Gauss
+    quadrature of Green's theorem (nma.geometry.outline.enclosed_area, exact for the cubic integrand), at
+    rest and deformed; named cases, or the rows of a dataset file, are the evaluation set, and training
+    draws each with equal chance; a file that does not fit is a ConfigError naming task.dataset."""
+    from nma.errors import ConfigError
+    from nma.geometry.outline import enclosed_area
+    from nma.schema import SpecTask as SpecConfig
+    from nma.tasks.spec import spec, wall_area
+
+    sim = simulator("strip", quad_points=2)
+    cfg = SpecConfig(name="strip", goal="pore_area", pore=[1, 3], cases={"shut": [-0.25], "open": [0.25]})
+    task = spec(cfg, sim)
+    X = sim.reference_points(sim.init_params())
+    u = sim.solve(sim.init_params(), jnp.array([2.0, 2.0]), MAT).u  # both sides pushed in
+    for x in (X, X + u):
+        exact = float(enclosed_area(np.asarray(x)[task.pore_loop]))
+        assert float(wall_area(task.observe(sim, {}, X, x - X, MAT))) == pytest.approx(exact, rel=1e-12)
+    assert float(task.rest_area) == pytest.approx(-6.25, rel=0.05)  # a pore of a 5 x 5 cell, clockwise
+    out = task.observe(sim, {}, X, u, MAT)
+    ratio = float(wall_area(out) / task.rest_area)
+    assert 0.5 < ratio < 0.95  # squeezed
+    t = jnp.array([ratio - 1.0 + 0.1])
+    assert float(task.metric(out, t)) == pytest.approx(10.0)  # 10% of the rest area short
+    assert float(wall_area(task.shown_target(out, t)) / task.rest_area) == pytest.approx(ratio + 0.1)
+    np.testing.assert_array_equal(task.eval_set(), [[-0.25], [0.25]])
+    assert task.describe(task.eval_set()[1]) == "open: pore area x 1.25"
+    drawn = np.asarray(task.sample(jax.random.PRNGKey(0), 400))[:, 0]
+    assert set(drawn) == {-0.25, 0.25} and abs(np.mean(drawn == 0.25) - 0.5) < 0.1
+
+    rows = tmp_path / "areas.csv"
+    rows.write_text("# relative change of the pore's area\n-0.2\n0.0\n0.3\n")
+    task = spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(rows)), sim)
+    np.testing.assert_array_equal(task.eval_set(), [[-0.2], [0.0], [0.3]])
+    rows.write_text("0.1, 0.2\n")
+    with pytest.raises(ConfigError, match=r"task.dataset .* must hold finite rows of 1 value for goal pore_area"):
+        spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(rows)), sim)
+    rows.write_text("-1.5\n")
+    with pytest.raises(ConfigError, match=r"task.dataset \(row 1 of .*\) holds relative changes"):
+        spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(rows)), sim)
+    with pytest.raises(ConfigError, match="task.dataset .*missing.csv cannot be read"):
+        spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(tmp_path / "missing.csv")), sim)
+
+
+def test_a_force_goal_reads_the_reaction_and_trains(simulator, tmp_path):
+    """goal force observes the reaction on an actuated group along its direction: at an equilibrium it is
+    the derivative of the equilibrium's strain energy with respect to the group's actuation (the
+    envelope theorem; central differences of two more solves), and a run with it trains (the loss
+    differentiates the energy's gradient through the adjoint)."""
+    from nma.schema import SpecTask as SpecConfig
+    from nma.solver.options import NewtonOptions
+    from nma.tasks.spec import spec
+    from nma.train.runs import make_trainer
+
+    sim = simulator("strip", quad_points=2)
+    tight = type(sim)(sim.disc, "superlu", NewtonOptions(rtol=1e-12))
+    task = spec(SpecConfig(name="strip", goal="force", group="left", low=[0.0], high=[0.1]), tight)
+    p = tight.init_params()
+    X = tight.reference_points(p)
+    d, h = jnp.array([1.5, 0.7]), 1e-4
+    energy = lambda d: tight.energy(X, tight.solve(p, d, MAT).u, MAT)  # noqa: E731
+    reaction = float(task.observe(tight, p, X, tight.solve(p, d, MAT).u, MAT)[0])
+    central = (energy(d + jnp.array([h, 0.0])) - energy(d - jnp.array([h, 0.0]))) / (2 * h)
+    assert reaction > 0 and reaction == pytest.approx(central, rel=1e-6)
+    assert float(task.metric(jnp.array([reaction]), jnp.array([0.1]))) == pytest.approx(abs(reaction - 0.1))
+
+    s = validate(compose_cfg("task=strip_spread", "scene=strip", "task.goal=force", "task.group=left", "task.points=[]",
+                             "task.low=[0.0]", "task.high=[0.1]", "task.eval_points=2", "logger=none", "fidelity=fast",
+                             "trainer.steps=2", "trainer.batch_size=2", "trainer.progress=false"))
+    trainer = make_trainer(s, tmp_path)
+    before = jax.tree_util.tree_leaves(trainer.state["params"])
+    record = trainer.fit().record
+    assert trainer.task.metric_name == "mean_force_error" and np.isfinite(record["mean_force_error"])
+    moved = [not np.allclose(a, b) for a, b in zip(before, jax.tree_util.tree_leaves(trainer.state["params"]))]
+    assert all(moved)  # every parameter (network and radii) took a finite step
+
+
 def test_the_tutorials_commands_run(tmp_path):
-    """docs/tutorial.md's two training commands, at debug size (two steps at the fast discretisation):
-    the scene and the task it poses in YAML train, learned and frozen."""
+    """docs/tutorial.md's training commands, at debug size (two steps at the fast discretisation): the
+    scene and the tasks it poses in YAML train, learned and frozen, a distance and a pore's area."""
     text = (Path(__file__).resolve().parent.parent / "docs" / "tutorial.md").read_text()
     commands = re.findall(r"^python3 -m nma\.run .*$", text, re.M)
-    assert len(commands) == 2
+    assert len(commands) == 3
     for k, line in enumerate(commands):
         args = [a for a in shlex.split(line)[3:] if not a.startswith("hydra.run.dir=")]
         run_dir = tmp_path / str(k)
@@ -98,7 +177,9 @@ def test_the_tutorials_commands_run(tmp_path):
                               capture_output=True, text=True, timeout=600)
         assert proc.returncode == 0, proc.stderr[-3000:]
         metrics = json.loads((run_dir / "metrics.json").read_text())
-        assert metrics["metric"] == "mean_distance_error" and np.isfinite(metrics["value"])
+        pore = "task=strip_pore" in line
+        assert metrics["metric"] == ("mean_pore_area_error_pct" if pore else "mean_distance_error")
+        assert np.isfinite(metrics["value"]) and len(metrics["per_sample"]) == (3 if pore else 9)  # the cases; eval_points
         assert metrics["freeze_geometry"] == ("freeze_geometry=true" in line)
 
 
@@ -128,7 +209,7 @@ class Lift(Task):
     def sample(self, key, n):
         return jax.random.uniform(key, (n, 1), minval=-0.5, maxval=0.5)
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
         t = sim.tracked(X, u)
         return 0.5 * (t["top_left"][1:] + t["top_right"][1:])
 

@@ -152,7 +152,9 @@ def _area_tables(m: int):
 
 
 @lru_cache(maxsize=None)
-def _line_basis(m: int, per_span: int) -> np.ndarray:
+def loop_basis(m: int, per_span: int) -> np.ndarray:
+    """B-spline values (n_spans * per_span, m) at `per_span` even steps through each knot span of an edge
+    with m control points, the end excluded (it is the next edge's start)."""
     n = m - 2
     return basis_matrix(np.arange(n * per_span) / (n * per_span), m)
 
@@ -167,7 +169,7 @@ def enclosed_area(loop: np.ndarray):
 def sample_loop(loop: np.ndarray, per_span: int) -> np.ndarray:
     """Points along a loop (..., n_edges, m, 2), `per_span` per knot span, each join once:
     (..., n_edges * spans * per_span, 2)."""
-    points = np.einsum("nk,...ekd->...end", _line_basis(loop.shape[-2], per_span), loop)
+    points = np.einsum("nk,...ekd->...end", loop_basis(loop.shape[-2], per_span), loop)
     return points.reshape(*loop.shape[:-3], -1, 2)
 
 

@@ -21,8 +21,9 @@ class Task:
     def net_input(self, t: jnp.ndarray) -> jnp.ndarray:
         return t
 
-    def observe(self, sim, geom, X, u) -> jnp.ndarray:
-        """What the task reads off an equilibrium: geometry parameters, reference points, displacement."""
+    def observe(self, sim, geom, X, u, mat) -> jnp.ndarray:
+        """What the task reads off an equilibrium: geometry parameters, reference points, displacement,
+        and the material (for what depends on it: a reaction force)."""
         raise NotImplementedError
 
     def targets(self, t: jnp.ndarray) -> jnp.ndarray:  # what observe should equal, same shape
@@ -80,12 +81,12 @@ class Task:
         it, with the reason in words; None where it is not known in closed form."""
         return None
 
-    def rest_metric(self, sim) -> float:
+    def rest_metric(self, sim, mat) -> float:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
         import jax
 
         geom = sim.init_params()
         X = sim.reference_points(geom)
-        out = self.observe(sim, geom, X, jnp.zeros_like(X))
+        out = self.observe(sim, geom, X, jnp.zeros_like(X), mat)
         return float(jnp.mean(jax.vmap(lambda t: self.metric(out, t))(self.eval_set())))
 

@@ -146,7 +146,7 @@ class DigitalMNIST(Task):
             return jax.nn.one_hot(t[..., 0].astype(int), 10)
         return t[..., 1:]
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
         return self.display.scores(X + u, geom["colours"])
 
     def targets(self, t):

@@ -24,7 +24,7 @@ class Rotation(Task):
     def sample(self, key, n):
         return jax.random.uniform(key, (n, 1), minval=self.lo, maxval=self.hi)
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
         tracked = sim.tracked(X, u)
         return jnp.stack([tracked["left"], tracked["right"]])
 

@@ -101,7 +101,7 @@ class ShapeMatching(Task):
         weights = jax.random.normal(key, (n, self.omega.shape[0]))
         return jax.vmap(self.curve)(weights).reshape(n, -1)
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
         x = X + u
         return jnp.einsum("nk,nkd->nd", self._w, x[self._idx])
 

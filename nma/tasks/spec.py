@@ -1,49 +1,112 @@
-"""A task posed in YAML (`task=<file>` with `defaults: [spec_schema]`; the schema: nma.schema.SpecTask).
+"""A task posed in YAML (`task=<file>` with `defaults: [spec_schema]`; the schema: nma.tasks.schemas.SpecTask).
 
-A small, closed vocabulary: the task observes tracked points of its scene and sets them one of three
-goals, each a function of a descriptor t drawn from a box:
+A small, closed vocabulary: the task observes tracked points of its scene, or the boundary of one of its
+pores, and sets them one of four goals, each a function of a descriptor t:
 - `move`: every point to its rest position + t (t in 2D): the paper's translation is
   `points: [pointer]`, `low: [-1.5, -1.5]`, `high: [1.5, 1.5]`;
 - `rotate`: two points about their rest midpoint by t radians: the paper's rotations are
   `points: [left, right]`;
-- `distance`: the distance between two points to its rest value + t.
-The loss is the mean absolute (l1) or squared (l2) error of the points (or of the distance); the metric
-is what a reader asks of the goal: the distance of the points to their targets, the error of the
-angle of the line through the two points (degrees), or the error of their distance.  Everything a
-figure needs follows from the goal and the box.
+- `distance`: the distance between two points to its rest value + t;
+- `pore_area`: the area inside the pore of cell `pore` to its rest area x (1 + t): open or close a pore
+  on demand.  The area is exact (Green's theorem on the quadratic Bezier segments of the pore's wall);
+- `force`: the reaction force on the actuated group `group` along its direction (what its actuator
+  must push with, the energy's gradient at the group's points) to t: press with a given force.
+t comes from a box (`low`, `high`: uniform in training, an evenly spaced grid in evaluation), from
+named `cases` or from a `dataset` file (in training each with equal chance; in evaluation all).
+The loss is the mean absolute (l1) or squared (l2) error of the points (or of the distance, or of the
+area ratio); the metric is what a reader asks of the goal: the distance of the points to their
+targets, the error of the angle of the line through the two points (degrees), the error of their
+distance, or the error of the pore's area in % of its rest area.  Everything a figure needs follows
+from the goal and the descriptors.
 """
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .schemas import SpecTask as SpecConfig
+from ..errors import ConfigError
+from ..geometry.outline import loop_basis, oriented_loops, sample_loop
+from ..mechanics.energy import quadrature, strain_energy
 from .base import Task
+from .schemas import SpecTask as SpecConfig
+
+PER_SPAN = 4  # boundary points per knot span of a pore's wall: even, so every span's midpoint is one
+
+
+def descriptors(cfg: SpecConfig) -> np.ndarray | None:
+    """The finite set of descriptors (n, dim) of named cases or of a dataset file (CSV, one per row, '#'
+    comments), None for a box; ConfigError naming the field for a file that cannot be read or rows that
+    do not fit the goal."""
+    if cfg.cases:
+        return np.asarray(list(cfg.cases.values()), float).reshape(len(cfg.cases), cfg.dim)
+    if not cfg.dataset:
+        return None
+    path = Path(cfg.dataset)
+    try:
+        rows = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"task.dataset {path} cannot be read as CSV numbers (one descriptor per row): "
+                          f"{exc}") from None
+    if rows.shape[0] == 0 or rows.shape[1] != cfg.dim or not np.all(np.isfinite(rows)):
+        raise ConfigError(f"task.dataset {path} must hold finite rows of {cfg.dim} value{'s' * (cfg.dim > 1)} for "
+                          f"goal {cfg.goal}, got an array of shape {rows.shape}")
+    for k, row in enumerate(rows):
+        cfg.check_values(f"dataset (row {k + 1} of {path})", list(row))
+    return rows
+
+
+def wall_area(points: jnp.ndarray) -> jnp.ndarray:
+    """The signed area inside a closed curve given by its points at PER_SPAN even steps per quadratic
+    span, exactly: each span is the Bezier segment through its start, midpoint and end, whose area
+    contribution (1/2 of the integral of x dy - y dx) is (P0xP1 + P1xP2) / 3 + P0xP2 / 6."""
+    start = points[::PER_SPAN]
+    mid = points[PER_SPAN // 2::PER_SPAN]
+    end = jnp.roll(start, -1, axis=-2)
+    ctrl = 2.0 * mid - 0.5 * (start + end)
+    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
+    return jnp.sum((cross(start, ctrl) + cross(ctrl, end)) / 3.0 + cross(start, end) / 6.0, axis=-1)
 
 
 class SpecTask(Task):
     sweep_fps = 8.0
 
-    def __init__(self, cfg: SpecConfig, rest: jnp.ndarray):
+    def __init__(self, cfg: SpecConfig, rest: jnp.ndarray, pore_loop: np.ndarray | None = None,
+                 group: tuple[np.ndarray, np.ndarray] | None = None):
+        """`rest`: the observed points at rest, (k, 2) tracked points or the pore's wall; `pore_loop`: the
+        pore's wall as point indices (n_edges, m), for goal pore_area; `group`: the actuated group's point
+        indices and its direction (2,), for goal force."""
         self.name, self.d_max, self.goal = cfg.name, cfg.d_max, cfg.goal
         self.point_names = list(cfg.points)
-        self.rest = jnp.asarray(rest)                                    # (k, 2) the points at rest
+        self.rest = jnp.asarray(rest)
         self.centre = jnp.mean(self.rest, axis=0)
-        self.low, self.high = jnp.asarray(cfg.low), jnp.asarray(cfg.high)
         self.l2 = cfg.loss == "l2"
-        axes = [np.asarray(jnp.linspace(lo, hi, cfg.eval_points)) for lo, hi in zip(cfg.low, cfg.high)]
-        # the grid with the first dimension fastest (as the translation task's eval grid)
-        self._eval = jnp.asarray([p[::-1] for p in itertools.product(*axes[::-1])])
+        self.pore_loop, self.outline = pore_loop, pore_loop is not None
+        self.group, self.group_name = group, cfg.group
+        self.rest_area = wall_area(self.rest) if self.outline else None
+        self.cases = descriptors(cfg)
+        self.case_names = list(cfg.cases)
+        if self.cases is None:
+            self.low, self.high = jnp.asarray(cfg.low), jnp.asarray(cfg.high)
+            axes = [np.asarray(jnp.linspace(lo, hi, cfg.eval_points)) for lo, hi in zip(cfg.low, cfg.high)]
+            # the grid with the first dimension fastest (as the translation task's eval grid)
+            self._eval = jnp.asarray([p[::-1] for p in itertools.product(*axes[::-1])])
+        else:
+            self._eval = jnp.asarray(self.cases)
+            self.low, self.high = jnp.min(self._eval, axis=0), jnp.max(self._eval, axis=0)
+            self.sweep_fps = 1.0  # separate cases, not a continuous path
+        first, last = (self.point_names or ["", ""])[0], (self.point_names or ["", ""])[-1]
         self.metric_name, self.metric_unit, self._label = {
-            "move": (f"mean_{self.point_names[0] if len(self.point_names) == 1 else 'point'}_error", "length units",
+            "move": (f"mean_{first if len(self.point_names) == 1 else 'point'}_error", "length units",
                      f"distance of {', '.join(self.point_names)} to the target"),
-            "rotate": ("mean_angle_error_deg", "degrees", f"error of the angle of {self.point_names[0]}-"
-                       f"{self.point_names[-1]}"),
-            "distance": ("mean_distance_error", "length units", f"error of the distance {self.point_names[0]}-"
-                         f"{self.point_names[-1]}"),
+            "rotate": ("mean_angle_error_deg", "degrees", f"error of the angle of {first}-{last}"),
+            "distance": ("mean_distance_error", "length units", f"error of the distance {first}-{last}"),
+            "pore_area": ("mean_pore_area_error_pct", "% of the rest area",
+                          f"error of the area of the pore of cell {list(cfg.pore or [])}"),
+            "force": ("mean_force_error", "force units (E x length)", f"error of the force on group {cfg.group}"),
         }[self.goal]
 
     @property
@@ -52,9 +115,18 @@ class SpecTask(Task):
 
     # -- the protocol ----------------------------------------------------------------------------------
     def sample(self, key, n):
+        if self.cases is not None:  # each case (or row) with equal chance
+            return self._eval[jax.random.randint(key, (n,), 0, len(self._eval))]
         return jax.random.uniform(key, (n, len(self.low)), minval=self.low, maxval=self.high)
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
+        if self.group is not None:  # the internal force at the group's points, along its direction
+            f = jax.grad(lambda v: strain_energy(sim.disc, quadrature(sim.disc, X), v, mat))(u)
+            points, direction = self.group
+            return jnp.sum(f[points] @ direction, keepdims=True)
+        if self.outline:  # the pore's wall, PER_SPAN points per span
+            x = (X + u)[self.pore_loop]
+            return jnp.einsum("nk,ekd->end", loop_basis(x.shape[1], PER_SPAN), x).reshape(-1, 2)
         tracked = sim.tracked(X, u)
         return jnp.stack([tracked[p] for p in self.point_names])
 
@@ -68,11 +140,17 @@ class SpecTask(Task):
             c, s = jnp.cos(t[..., 0]), jnp.sin(t[..., 0])
             R = jnp.stack([jnp.stack([c, -s], -1), jnp.stack([s, c], -1)], -2)
             return self.centre + jnp.einsum("...ij,pj->...pi", R, self.rest - self.centre)
+        if self.goal == "pore_area":
+            return 1.0 + t[..., 0]  # the area as a multiple of the rest area
+        if self.goal == "force":
+            return t
         return jnp.linalg.norm(self.rest[1] - self.rest[0]) + t[..., 0]  # distance: a length
 
     def _error(self, out, t):
         if self.goal == "distance":
             return jnp.linalg.norm(out[..., 1, :] - out[..., 0, :], axis=-1) - self.targets(t)
+        if self.goal == "pore_area":
+            return wall_area(out) / self.rest_area - self.targets(t)
         return out - self.targets(t)
 
     def loss(self, out, t):
@@ -87,10 +165,17 @@ class SpecTask(Task):
             rest = self.rest[1] - self.rest[0]
             angle = jnp.arctan2(v[..., 1], v[..., 0]) - jnp.arctan2(rest[1], rest[0])
             return jnp.degrees(jnp.abs(jnp.angle(jnp.exp(1j * (angle - t[..., 0])))))  # wrapped to (-pi, pi]
+        if self.goal == "pore_area":
+            return 100.0 * jnp.abs(self._error(out, t))
+        if self.goal == "force":
+            return jnp.abs(out[..., 0] - t[..., 0])
         return jnp.abs(self._error(out, t))
 
-    # -- what figures need, from the goal and the box ----------------------------------------------------
+    # -- what figures need, from the goal and the descriptors -----------------------------------------
     def shown_target(self, out, t):
+        if self.goal == "pore_area":  # the reached wall scaled about its centre to the target's area
+            centre = jnp.mean(out, axis=0)
+            return centre + (out - centre) * jnp.sqrt(self.targets(t) * self.rest_area / wall_area(out))
         if self.goal != "distance":
             return self.targets(t)
         mid, v = 0.5 * (out[0] + out[1]), out[1] - out[0]  # the reached points moved along their line
@@ -99,9 +184,17 @@ class SpecTask(Task):
 
     def describe(self, t):
         t = np.asarray(t)
+        name = next((f"{n}: " for n, c in zip(self.case_names, self.cases if self.case_names else [])
+                     if np.array_equal(c, t)), "")
         if self.goal == "move":
-            return "target offset ({:+.2f}, {:+.2f})".format(*t)
-        return f"target angle {np.degrees(t[0]):+.1f}°" if self.goal == "rotate" else f"distance change {t[0]:+.2f}"
+            return name + "target offset ({:+.2f}, {:+.2f})".format(*t)
+        if self.goal == "rotate":
+            return name + f"target angle {np.degrees(t[0]):+.1f}°"
+        if self.goal == "pore_area":
+            return name + f"pore area x {1.0 + t[0]:.2f}"
+        if self.goal == "force":
+            return name + f"force {t[0]:+.3g}"
+        return name + f"distance change {t[0]:+.2f}"
 
     def coordinates(self, ts):
         ts = np.asarray(ts)
@@ -109,9 +202,15 @@ class SpecTask(Task):
             return ts, ["target offset x [length units]", "target offset y [length units]"]
         if self.goal == "rotate":
             return np.degrees(ts), ["target angle [degrees]"]
+        if self.goal == "pore_area":
+            return ts, ["relative change of the pore's area"]
+        if self.goal == "force":
+            return ts, [f"target force on group {self.group_name} [E x length]"]
         return ts, ["change of distance [length units]"]
 
     def sweep(self, n):
+        if self.cases is not None:  # every case (row) in turn, as many as fit
+            return self._eval[jnp.arange(n) % len(self._eval)]
         if self.goal == "move":  # once round the ellipse inscribed in the box
             phi = jnp.linspace(0.0, 2.0 * jnp.pi, n, endpoint=False)
             mid, half = 0.5 * (self.low + self.high), 0.5 * (self.high - self.low)
@@ -120,7 +219,28 @@ class SpecTask(Task):
         return jnp.concatenate([up, up[-2:0:-1]])[:n, None]
 
 
+def pore_wall(disc, X: np.ndarray, cell) -> np.ndarray:
+    """The wall of the pore inside `cell` [column, row] (from the bottom left) as point indices (n_edges,
+    m): the pore loop that holds the cell's centre."""
+    import shapely
+
+    spec = disc.spec
+    i, j = cell
+    centre = shapely.Point(0.5 * (spec.x_breaks[i] + spec.x_breaks[i + 1]), 0.5 * (spec.y_breaks[j] + spec.y_breaks[j + 1]))
+    for loop in oriented_loops(disc, X)[1:]:
+        if shapely.Polygon(sample_loop(X[loop], PER_SPAN)).contains(centre):
+            return loop
+    raise ConfigError(f"task.pore {list(cell)}: no pore of scene {spec.name} surrounds the centre of that cell")
+
+
 def spec(cfg: SpecConfig, sim) -> SpecTask:
     X = sim.reference_points(sim.init_params())
+    if cfg.goal == "force":
+        group = next(g for g in sim.disc.spec.groups if g.name == cfg.group)
+        return SpecTask(cfg, jnp.zeros((1,)), group=(sim.disc.group_points[cfg.group], np.asarray(group.direction, float)))
+    if cfg.goal == "pore_area":
+        loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
+        x = np.asarray(X)[loop]
+        return SpecTask(cfg, np.einsum("nk,ekd->end", loop_basis(x.shape[1], PER_SPAN), x).reshape(-1, 2), loop)
     tracked = sim.disc.tracked_points(X)
     return SpecTask(cfg, jnp.stack([tracked[p] for p in cfg.points]))

@@ -23,7 +23,7 @@ class Translation(Task):
     def sample(self, key, n):
         return jax.random.uniform(key, (n, 2), minval=-self.half_width, maxval=self.half_width)
 
-    def observe(self, sim, geom, X, u):
+    def observe(self, sim, geom, X, u, mat):
         return sim.tracked(X, u)[self.point]
 
     def targets(self, t):

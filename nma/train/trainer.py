@@ -5,7 +5,7 @@ One step reads as the data flow of the design:
     d = encoder(theta, t)            actuations, d_max * tanh
     X = scene.reference(phi)         differentiable design map
     u = equilibrium(X, d)            Newton forward, adjoint backward
-    loss = task.loss(task.observe(phi, X, u), t)
+    loss = task.loss(task.observe(phi, X, u, mat), t)
     grads -> sum over ranks -> mean over converged samples -> optax update -> project phi to its box
 A sample whose solve does not converge is left out of the mean (and counted in the log); a step in
 which no sample converges stops the run with the solver's error.
@@ -134,7 +134,7 @@ class Trainer:
         d = self.model.apply(params["net"], self.task.net_input(ts))
         u, info = self.sim.equilibrium_batch(X, d, self.mat)
         # in chunks: an evaluation set may be large, and an observation (the colour display) is not small
-        observe = lambda ui: self.task.observe(self.sim, params["geom"], X, ui)
+        observe = lambda ui: self.task.observe(self.sim, params["geom"], X, ui, self.mat)
         out = jax.lax.map(observe, u, batch_size=OBSERVE_CHUNK)
         return X, d, u, out, info
 
