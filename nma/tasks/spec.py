@@ -105,8 +105,8 @@ class SpecTask(Task):
             "rotate": ("mean_angle_error_deg", "degrees", f"error of the angle of {first}-{last}"),
             "distance": ("mean_distance_error", "length units", f"error of the distance {first}-{last}"),
             "pore_area": ("mean_pore_area_error_pct", "% of the rest area",
-                          f"error of the area of the pore of cell {list(cfg.pore or [])}"),
-            "force": ("mean_force_error", "force units (E x length)", f"error of the force on group {cfg.group}"),
+                          f"area error of pore {list(cfg.pore or [])}"),
+            "force": ("mean_force_error", "force units (E x length)", f"force error on group {cfg.group}"),
         }[self.goal]
 
     @property
