@@ -31,6 +31,8 @@ class Registry(Generic[T]):
         """`factory` a callable, or the path "module:attribute" of one, imported on first use."""
         if name in self._items:
             raise ValueError(f"{self.kind} {name!r} is registered twice")
+        if isinstance(factory, str) and factory.count(":") != 1:
+            raise ValueError(f"{self.kind} {name!r}: a factory's path is 'module:attribute', got {factory!r}")
         self._items[name] = factory
         if schema is not None:
             self.schemas[name] = schema
@@ -41,7 +43,12 @@ class Registry(Generic[T]):
         factory = self._items[name]
         if isinstance(factory, str):
             module, _, attribute = factory.partition(":")
-            factory = self._items[name] = getattr(import_module(module), attribute)
+            try:
+                factory = getattr(import_module(module), attribute)
+            except (ImportError, AttributeError) as exc:
+                raise ConfigError(f"{self.kind} {name} is declared as {self._items[name]!r}, which does not import: "
+                                  f"{type(exc).__name__}: {exc}") from None
+            self._items[name] = factory
         return factory
 
 

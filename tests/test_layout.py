@@ -89,3 +89,22 @@ def test_the_schema_and_the_task_declarations_load_without_jax():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert int(proc.stdout) >= 6  # the five paper tasks' schemas (two rotations) and the spec's
+
+
+def test_every_declared_task_imports_and_a_broken_declaration_names_itself():
+    import pytest
+
+    from nma.errors import ConfigError
+    from nma.registry import Registry
+    from nma.tasks.schemas import TASK_SCHEMAS
+    from nma.registry import TASKS
+
+    for name in TASK_SCHEMAS:
+        assert callable(TASKS.get(name)), name
+    broken = Registry("task.name")
+    broken.declare("lost", "nma.tasks.nowhere:factory")
+    with pytest.raises(ConfigError, match="task.name lost is declared as 'nma.tasks.nowhere:factory', which does not "
+                                          "import: ModuleNotFoundError"):
+        broken.get("lost")
+    with pytest.raises(ValueError, match="'module:attribute'"):
+        broken.declare("pathless", "nma.tasks.spec")

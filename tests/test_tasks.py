@@ -131,27 +131,33 @@ def test_a_pore_area_goal_is_exact_and_its_cases_or_dataset_are_the_evaluation_s
         spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(tmp_path / "missing.csv")), sim)
 
 
-def test_a_force_goal_reads_the_reaction_and_trains(simulator, tmp_path):
-    """goal force observes the reaction on an actuated group along its direction: at an equilibrium it is
-    the derivative of the equilibrium's strain energy with respect to the group's actuation (the
-    envelope theorem; central differences of two more solves), and a run with it trains (the loss
-    differentiates the energy's gradient through the adjoint)."""
+@pytest.mark.parametrize("scene, d", [("strip", [1.5, 0.7]),            # the left group's own actuation
+                                       ("rotation_single", [1.5])])  # shared by the left and right groups
+def test_a_force_goal_reads_what_the_actuation_pushes_with(simulator, scene, d):
+    """goal force observes the force of the group's actuation: at an equilibrium, the derivative of the
+    equilibrium's strain energy with respect to that actuation (the envelope theorem; central differences
+    of two more solves), summed over every group the actuation drives."""
     from nma.schema import SpecTask as SpecConfig
     from nma.solver.options import NewtonOptions
     from nma.tasks.spec import spec
-    from nma.train.runs import make_trainer
 
-    sim = simulator("strip", quad_points=2)
+    sim = simulator(scene, quad_points=2)
     tight = type(sim)(sim.disc, "superlu", NewtonOptions(rtol=1e-12))
-    task = spec(SpecConfig(name="strip", goal="force", group="left", low=[0.0], high=[0.1]), tight)
+    task = spec(SpecConfig(name=scene, goal="force", group="left", low=[0.0], high=[0.1]), tight)
     p = tight.init_params()
     X = tight.reference_points(p)
-    d, h = jnp.array([1.5, 0.7]), 1e-4
+    d = jnp.asarray(d)
+    h = jnp.zeros_like(d).at[0].set(1e-4)
     energy = lambda d: tight.energy(X, tight.solve(p, d, MAT).u, MAT)  # noqa: E731
     reaction = float(task.observe(tight, p, X, tight.solve(p, d, MAT).u, MAT)[0])
-    central = (energy(d + jnp.array([h, 0.0])) - energy(d - jnp.array([h, 0.0]))) / (2 * h)
+    central = (energy(d + h) - energy(d - h)) / (2 * h[0])
     assert reaction > 0 and reaction == pytest.approx(central, rel=1e-6)
     assert float(task.metric(jnp.array([reaction]), jnp.array([0.1]))) == pytest.approx(abs(reaction - 0.1))
+
+
+def test_a_force_goal_trains(tmp_path):
+    """A run with goal force trains: the loss differentiates the energy's gradient through the adjoint."""
+    from nma.train.runs import make_trainer
 
     s = validate(compose_cfg("task=strip_spread", "scene=strip", "task.goal=force", "task.group=left", "task.points=[]",
                              "task.low=[0.0]", "task.high=[0.1]", "task.eval_points=2", "logger=none", "fidelity=fast",

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from ..errors import ConfigError
+
 
 @dataclass(frozen=True)
 class Resolution:
@@ -12,7 +14,16 @@ class Resolution:
     quad_points: int = 5             # Gauss points per knot span and direction
     inversion_barrier: float = 0.0   # det F below which the barrier at the 4 x 4 check points acts; 0: off
 
+    def __post_init__(self):
+        if self.ctrl_per_patch < 5 or (self.ctrl_per_patch - 2) % 3:
+            raise ConfigError(f"fidelity.ctrl_per_patch must be 3k + 2 with k >= 1 (5, 8, 11, ...: one knot per "
+                              f"design span), got {self.ctrl_per_patch}")
+        if self.quad_points < 1:
+            raise ConfigError(f"fidelity.quad_points must be at least 1, got {self.quad_points}")
+
     @classmethod
     def of(cls, setting=None) -> "Resolution":
-        """From any setting that has these fields (a Fidelity); None: the paper's 5 x 5."""
-        return cls() if setting is None else cls(*(getattr(setting, f.name) for f in fields(cls)))
+        """From a setting with these fields (a Fidelity); None: the paper's 5 x 5."""
+        if setting is None or isinstance(setting, cls):
+            return setting or cls()
+        return cls(*(getattr(setting, f.name) for f in fields(cls)))

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import ClassVar, Optional
 
+from ..geometry.options import Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
 from ..solver.options import NewtonOptions
 from ..settings import Schema, bounded, choice
@@ -19,23 +20,26 @@ class MaterialConfig(Schema):
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy)")
 
 
+_RESOLUTION = Resolution()  # the discretisation's defaults; the config declares their ranges
+
+
 @dataclass
 class Fidelity(Schema):
     """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
     prefix: ClassVar[str] = "fidelity"
-    ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="3k + 2: the 5 x 5 design net refined by knot insertion")
-    quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
+    ctrl_per_patch: int = bounded(_RESOLUTION.ctrl_per_patch, "[5, 1000]",
+                                  doc="3k + 2: the 5 x 5 design net refined by knot insertion")
+    quad_points: int = bounded(_RESOLUTION.quad_points, "[2, 10]",
+                               doc="Gauss points per knot span and direction; 1 under-integrates")
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
                                          "error allowed against the 14 x 5 reference; the scene's measured front "
                                          "then sets the two above")
-    inversion_barrier: float = bounded(0.0, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
+    inversion_barrier: float = bounded(_RESOLUTION.inversion_barrier, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
                                        "every element, corners included, where the Gauss points do not see, and "
                                        "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
 
     def check(self):
-        if (self.ctrl_per_patch - 2) % 3:
-            self.fail("ctrl_per_patch", "must be 3k + 2 (5, 8, 11, ...: one knot per design span)",
-                      self.ctrl_per_patch)
+        Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)
 
 
 _CONTACT = ContactSettings()  # the contact model's defaults

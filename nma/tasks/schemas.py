@@ -106,7 +106,7 @@ GOALS = {  # goal -> (tracked points it needs: None any number, 0 none; the desc
     "rotate": (2, 1),      # the two points about their rest midpoint by t radians
     "distance": (2, 1),    # the two points' distance to its rest value + t
     "pore_area": (0, 1),   # the area inside the pore of cell `pore` to its rest area x (1 + t)
-    "force": (0, 1),       # the reaction force on actuated group `group`, along its direction, to t
+    "force": (0, 1),       # the force the actuation of group `group` pushes with (dW/dd) to t
 }
 
 
@@ -119,8 +119,8 @@ class SpecTask(TaskConfig):
     points: List[str] = field(default_factory=list)  # tracked points of the scene, in order
     goal: str = choice("move", tuple(GOALS), doc="move: each point to rest + t (t in 2D); rotate: two points "
                        "about their midpoint by t radians; distance: two points' distance to rest + t; "
-                       "pore_area: the pore of cell `pore` to its rest area x (1 + t); force: the reaction "
-                       "force on actuated group `group` along its direction to t")
+                       "pore_area: the pore of cell `pore` to its rest area x (1 + t); force: the force the "
+                       "actuation of group `group` pushes with (the strain energy's derivative) to t")
     pore: Optional[List[int]] = None       # pore_area: the porous cell [column, row], from the bottom left, 0-based
     group: Optional[str] = None            # force: an actuated group of the scene (scene.groups)
     low: Optional[List[float]] = None      # a box: low[i] <= t[i] <= high[i]
@@ -129,7 +129,7 @@ class SpecTask(TaskConfig):
     dataset: Optional[str] = None          # or a CSV file of descriptors, one per row (nma.tasks.spec.descriptors)
     eval_points: int = bounded(5, "[1, 1000]", doc="evaluation of a box: descriptors per dimension, evenly over it")
     loss: str = choice("l1", ("l1", "l2"), doc="per sample: mean absolute (l1) or squared (l2) error of the "
-                       "observed points (move, rotate), of the distance, or of the area ratio")
+                       "observed points (move, rotate), of the distance, of the area ratio or of the force")
 
     @property
     def factory(self) -> str:
@@ -154,8 +154,11 @@ class SpecTask(TaskConfig):
             self.fail("group", "must name an actuated group of the scene for goal force, and only for it", self.group)
         if self.pore is not None and (len(self.pore) != 2 or min(self.pore) < 0):
             self.fail("pore", "must be a cell [column, row], counted from 0 at the bottom left", self.pore)
+        if (self.low is None) != (self.high is None):
+            self.fail("low" if self.low is None else "high", "must be given with task."
+                      f"{'high' if self.low is None else 'low'}: together they are the descriptors' box")
         given = [k for k, v in (("low", self.low), ("cases", self.cases), ("dataset", self.dataset)) if v]
-        if len(given) != 1 or (self.low is None) != (self.high is None):
+        if len(given) != 1:
             self.fail("low", "and task.high (a box), task.cases or task.dataset: give exactly one of them, got "
                       f"{given + (['high'] if self.high else []) or 'none'}")
         for name, t in ([("low", self.low), ("high", self.high)] if self.low is not None else

@@ -9,8 +9,9 @@ pores, and sets them one of four goals, each a function of a descriptor t:
 - `distance`: the distance between two points to its rest value + t;
 - `pore_area`: the area inside the pore of cell `pore` to its rest area x (1 + t): open or close a pore
   on demand.  The area is exact (Green's theorem on the quadratic Bezier segments of the pore's wall);
-- `force`: the reaction force on the actuated group `group` along its direction (what its actuator
-  must push with, the energy's gradient at the group's points) to t: press with a given force.
+- `force`: the force the actuation of group `group` pushes with (the energy's conjugate of that
+  actuation: the derivative of the equilibrium's strain energy with respect to it, summed over every
+  group it drives) to t: press with a given force.
 t comes from a box (`low`, `high`: uniform in training, an evenly spaced grid in evaluation), from
 named `cases` or from a `dataset` file (in training each with equal chance; in evaluation all).
 The loss is the mean absolute (l1) or squared (l2) error of the points (or of the distance, or of the
@@ -63,8 +64,8 @@ def wall_area(points: jnp.ndarray) -> jnp.ndarray:
     """The signed area inside a closed curve given by its points at PER_SPAN even steps per quadratic
     span, exactly: each span is the Bezier segment through its start, midpoint and end, whose area
     contribution (1/2 of the integral of x dy - y dx) is (P0xP1 + P1xP2) / 3 + P0xP2 / 6."""
-    start = points[::PER_SPAN]
-    mid = points[PER_SPAN // 2::PER_SPAN]
+    start = points[..., ::PER_SPAN, :]
+    mid = points[..., PER_SPAN // 2::PER_SPAN, :]
     end = jnp.roll(start, -1, axis=-2)
     ctrl = 2.0 * mid - 0.5 * (start + end)
     cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
@@ -75,17 +76,17 @@ class SpecTask(Task):
     sweep_fps = 8.0
 
     def __init__(self, cfg: SpecConfig, rest: jnp.ndarray, pore_loop: np.ndarray | None = None,
-                 group: tuple[np.ndarray, np.ndarray] | None = None):
+                 actuation: np.ndarray | None = None):
         """`rest`: the observed points at rest, (k, 2) tracked points or the pore's wall; `pore_loop`: the
-        pore's wall as point indices (n_edges, m), for goal pore_area; `group`: the actuated group's point
-        indices and its direction (2,), for goal force."""
+        pore's wall as point indices (n_edges, m), for goal pore_area; `actuation`: how the prescribed
+        DOFs move with the group's actuation (the actuation matrix's column), for goal force."""
         self.name, self.d_max, self.goal = cfg.name, cfg.d_max, cfg.goal
         self.point_names = list(cfg.points)
         self.rest = jnp.asarray(rest)
         self.centre = jnp.mean(self.rest, axis=0)
         self.l2 = cfg.loss == "l2"
         self.pore_loop, self.outline = pore_loop, pore_loop is not None
-        self.group, self.group_name = group, cfg.group
+        self.actuation, self.group_name = actuation, cfg.group
         self.rest_area = wall_area(self.rest) if self.outline else None
         self.cases = descriptors(cfg)
         self.case_names = list(cfg.cases)
@@ -120,10 +121,9 @@ class SpecTask(Task):
         return jax.random.uniform(key, (n, len(self.low)), minval=self.low, maxval=self.high)
 
     def observe(self, sim, geom, X, u, mat):
-        if self.group is not None:  # the internal force at the group's points, along its direction
+        if self.actuation is not None:  # dW/dd_a = f_int at the prescribed DOFs . d u_D / d d_a
             f = jax.grad(lambda v: strain_energy(sim.disc, quadrature(sim.disc, X), v, mat))(u)
-            points, direction = self.group
-            return jnp.sum(f[points] @ direction, keepdims=True)
+            return jnp.reshape(f.reshape(-1)[sim.disc.dirichlet_dofs] @ self.actuation, (1,))
         if self.outline:  # the pore's wall, PER_SPAN points per span
             x = (X + u)[self.pore_loop]
             return jnp.einsum("nk,ekd->end", loop_basis(x.shape[1], PER_SPAN), x).reshape(-1, 2)
@@ -174,7 +174,7 @@ class SpecTask(Task):
     # -- what figures need, from the goal and the descriptors -----------------------------------------
     def shown_target(self, out, t):
         if self.goal == "pore_area":  # the reached wall scaled about its centre to the target's area
-            centre = jnp.mean(out, axis=0)
+            centre = jnp.mean(out, axis=-2, keepdims=True)
             return centre + (out - centre) * jnp.sqrt(self.targets(t) * self.rest_area / wall_area(out))
         if self.goal != "distance":
             return self.targets(t)
@@ -205,7 +205,7 @@ class SpecTask(Task):
         if self.goal == "pore_area":
             return ts, ["relative change of the pore's area"]
         if self.goal == "force":
-            return ts, [f"target force on group {self.group_name} [E x length]"]
+            return ts, [f"target force of group {self.group_name}'s actuation [E x length]"]
         return ts, ["change of distance [length units]"]
 
     def sweep(self, n):
@@ -236,11 +236,12 @@ def pore_wall(disc, X: np.ndarray, cell) -> np.ndarray:
 def spec(cfg: SpecConfig, sim) -> SpecTask:
     X = sim.reference_points(sim.init_params())
     if cfg.goal == "force":
-        group = next(g for g in sim.disc.spec.groups if g.name == cfg.group)
-        return SpecTask(cfg, jnp.zeros((1,)), group=(sim.disc.group_points[cfg.group], np.asarray(group.direction, float)))
+        group = next((g for g in getattr(sim.disc.spec, "groups", ()) if g.name == cfg.group), None)
+        if group is None:
+            raise ConfigError(f"task.group {cfg.group!r} is not an actuated group of scene {sim.disc.spec.name}")
+        return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.actuation_matrix[:, group.actuation]))
     if cfg.goal == "pore_area":
         loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
-        x = np.asarray(X)[loop]
-        return SpecTask(cfg, np.einsum("nk,ekd->end", loop_basis(x.shape[1], PER_SPAN), x).reshape(-1, 2), loop)
+        return SpecTask(cfg, sample_loop(np.asarray(X)[loop], PER_SPAN), loop)
     tracked = sim.disc.tracked_points(X)
     return SpecTask(cfg, jnp.stack([tracked[p] for p in cfg.points]))

@@ -100,9 +100,25 @@ def fingerprint(s: TrainConfig) -> dict:
     material = asdict(s.material)
     if material["formulation"] == "displacement":
         del material["formulation"]  # the default: runs from before the option resume
-    return {"task": asdict(s.task), "scene": asdict(s.scene), "model": asdict(s.model),
+    task = asdict(s.task)
+    if s.task.factory == "spec":
+        for key in ("pore", "group", "cases", "dataset"):
+            if not task[key]:
+                del task[key]  # unset: as before these existed, so that earlier runs resume
+        if s.task.dataset:  # the descriptors themselves, not only the file's name
+            task["dataset_sha256"] = _sha256(Path(s.task.dataset))
+    return {"task": task, "scene": asdict(s.scene), "model": asdict(s.model),
             "fidelity": asdict(s.fidelity), "material": material, "optim": asdict(s.optim),
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
+
+
+def _sha256(path: Path) -> str | None:
+    import hashlib
+
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None  # the task says so, naming task.dataset, when it is built
 
 
 def fidelity_record(disc, fidelity) -> dict:
