@@ -254,3 +254,21 @@ def test_a_task_from_outside_registers_and_trains(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["metric"] == "mean_lift_error" and np.isfinite(metrics["value"])
+
+
+def test_a_spec_fingerprint_holds_its_datasets_contents_and_no_unset_new_fields(tmp_path):
+    """A checkpoint's fingerprint (what a resume compares) holds a dataset's contents, so that a changed file
+    is not continued silently, and leaves out the spec fields a task does not set, so that runs written
+    before they existed resume."""
+    from nma.train.runs import fingerprint
+
+    plain = fingerprint(validate(compose_cfg("task=strip_spread", "scene=strip", "logger=none")))["task"]
+    assert not {"pore", "group", "cases", "dataset", "dataset_sha256"} & set(plain)
+    rows = tmp_path / "areas.csv"
+    prints = []
+    for text in ("-0.2\n0.2\n", "-0.2\n0.3\n"):
+        rows.write_text(text)
+        s = validate(compose_cfg("task=strip_spread", "scene=strip", "logger=none", "task.goal=pore_area",
+                                 "task.points=[]", "task.pore=[1,3]", "task.low=null", "task.high=null", f"task.dataset={rows}"))
+        prints.append(fingerprint(s)["task"])
+    assert prints[0]["dataset"] == str(rows) and prints[0]["dataset_sha256"] != prints[1]["dataset_sha256"]
