@@ -131,16 +131,16 @@ def test_a_pore_area_goal_is_exact_and_its_cases_or_dataset_are_the_evaluation_s
         spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(tmp_path / "missing.csv")), sim)
 
 
-@pytest.mark.parametrize("scene, d", [("strip", [1.5, 0.7]),            # the left group's own actuation
-                                       ("rotation_single", [1.5])])  # shared by the left and right groups
-def test_a_force_goal_reads_what_the_actuation_pushes_with(simulator, scene, d):
+def test_a_force_goal_reads_what_the_actuation_pushes_with(simulator):
     """goal force observes the force of the group's actuation: at an equilibrium, the derivative of the
     equilibrium's strain energy with respect to that actuation (the envelope theorem; central differences
-    of two more solves), summed over every group the actuation drives."""
+    of two more solves), summed over every group the actuation drives (rotation_single's actuation pulls
+    its left and right sides)."""
     from nma.schema import SpecTask as SpecConfig
     from nma.solver.options import NewtonOptions
     from nma.tasks.spec import spec
 
+    scene, d = "rotation_single", [1.5]
     sim = simulator(scene, quad_points=2)
     tight = type(sim)(sim.disc, "superlu", NewtonOptions(rtol=1e-12))
     task = spec(SpecConfig(name=scene, goal="force", group="left", low=[0.0], high=[0.1]), tight)
