@@ -60,6 +60,12 @@ def descriptors(cfg: SpecConfig) -> np.ndarray | None:
     return rows
 
 
+def wall_points(wall: jnp.ndarray) -> jnp.ndarray:
+    """The points of a pore's wall, its control points (n_edges, m, 2), at PER_SPAN even steps per span
+    (as outline.sample_loop, traceable)."""
+    return jnp.einsum("nk,ekd->end", loop_basis(wall.shape[1], PER_SPAN), wall).reshape(-1, 2)
+
+
 def wall_area(points: jnp.ndarray) -> jnp.ndarray:
     """The signed area inside a closed curve given by its points at PER_SPAN even steps per quadratic
     span, exactly: each span is the Bezier segment through its start, midpoint and end, whose area
@@ -97,7 +103,6 @@ class SpecTask(Task):
             self._eval = jnp.asarray([p[::-1] for p in itertools.product(*axes[::-1])])
         else:
             self._eval = jnp.asarray(self.cases)
-            self.low, self.high = jnp.min(self._eval, axis=0), jnp.max(self._eval, axis=0)
             self.sweep_fps = 1.0  # separate cases, not a continuous path
         first, last = (self.point_names or ["", ""])[0], (self.point_names or ["", ""])[-1]
         self.metric_name, self.metric_unit, self._label = {
@@ -124,9 +129,8 @@ class SpecTask(Task):
         if self.actuation is not None:  # dW/dd_a = f_int at the prescribed DOFs . d u_D / d d_a
             f = jax.grad(lambda v: strain_energy(sim.disc, quadrature(sim.disc, X), v, mat))(u)
             return jnp.reshape(f.reshape(-1)[sim.disc.dirichlet_dofs] @ self.actuation, (1,))
-        if self.outline:  # the pore's wall, PER_SPAN points per span
-            x = (X + u)[self.pore_loop]
-            return jnp.einsum("nk,ekd->end", loop_basis(x.shape[1], PER_SPAN), x).reshape(-1, 2)
+        if self.outline:
+            return wall_points((X + u)[self.pore_loop])
         tracked = sim.tracked(X, u)
         return jnp.stack([tracked[p] for p in self.point_names])
 
@@ -242,6 +246,6 @@ def spec(cfg: SpecConfig, sim) -> SpecTask:
         return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.actuation_matrix[:, group.actuation]))
     if cfg.goal == "pore_area":
         loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
-        return SpecTask(cfg, sample_loop(np.asarray(X)[loop], PER_SPAN), loop)
+        return SpecTask(cfg, wall_points(X[loop]), loop)
     tracked = sim.disc.tracked_points(X)
     return SpecTask(cfg, jnp.stack([tracked[p] for p in cfg.points]))
