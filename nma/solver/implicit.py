@@ -51,14 +51,14 @@ def available_cores() -> int:
 
 def tangents_at(eqs: Equations, X, d, mat, u_free):
     """Element tangents at a converged state (the adjoint's matrix)."""
-    _, kel = force_and_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, 1.0, eqs.A @ d), mat)
+    _, kel = force_and_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat)
     return kel
 
 
 def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
     """(X, d, mat)_bar = -adjoint^T dR_f/d(X, d, mat) at fixed free displacements."""
     def residual(X, d, mat):
-        return eqs.residual(quadrature(eqs.disc, X), u_free, 1.0, eqs.A @ d, mat)
+        return eqs.residual(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
 
     return jax.vjp(residual, X, d, mat)[1](-adjoint)
 
@@ -246,7 +246,7 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
-        return Equilibrium(eqs.full(u_free, 1.0, eqs.A @ d), info)
+        return Equilibrium(eqs.full(u_free, eqs.A @ d), info)
 
     return equilibrium
 

@@ -21,9 +21,10 @@ about to converge and the slow descent along the soft valley of a nearly-mechani
 residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance gets up to
 FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the
 norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the
-structure.  The converged state is a stationary point of the energy, usually a minimum; where
-a symmetric path has passed a buckling point it can be a saddle (Simulator.negative_eigenvalues counts
-its unstable modes).
+structure.  A warm solve (setup's `start`) walks the same way from another sample's equilibrium: the
+prescribed displacements from that sample's to this one's.  The converged state is a stationary point
+of the energy, usually a minimum; where a symmetric path has passed a buckling point it can be a saddle
+(Simulator.negative_eigenvalues counts its unstable modes).
 """
 from __future__ import annotations
 
@@ -124,23 +125,25 @@ class Equations:
         self.f_free = self.f_ext[self.free]
         self.edofs = jnp.asarray(element_dofs(disc))
 
-    def full(self, u_free, lam, u_D):
+    def full(self, u_free, u_dir):
+        """Every control point's displacement from the free DOFs and the prescribed ones."""
         u = jnp.zeros(2 * self.disc.n_points, u_free.dtype)
-        return u.at[self.free].set(u_free).at[self.dirichlet].set(lam * u_D).reshape(-1, 2)
+        return u.at[self.free].set(u_free).at[self.dirichlet].set(u_dir).reshape(-1, 2)
 
-    def potential(self, quad, u_free, lam, u_D, mat):
-        u = self.full(u_free, lam, u_D)
-        return strain_energy(self.disc, quad, u, mat) - lam * jnp.dot(self.f_ext, u.reshape(-1))
+    def potential(self, quad, u_free, u_dir, load, mat):
+        """Strain energy less the work of the dead load at load factor `load`."""
+        u = self.full(u_free, u_dir)
+        return strain_energy(self.disc, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
 
-    def residual(self, quad, u_free, lam, u_D, mat):
-        return jax.grad(self.potential, argnums=1)(quad, u_free, lam, u_D, mat)
+    def residual(self, quad, u_free, u_dir, load, mat):
+        return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat)
 
-    def linearise(self, quad, u_free, lam, u_D, mat):
+    def linearise(self, quad, u_free, u_dir, load, mat):
         """Potential, free residual g_f and element tangents at a state."""
-        u = self.full(u_free, lam, u_D)
+        u = self.full(u_free, u_dir)
         energy, force, kel = energy_force_tangents(self.disc, quad, u, mat)
-        potential = energy - lam * jnp.dot(self.f_ext, u.reshape(-1))
-        return potential, force.reshape(-1)[self.free] - lam * self.f_free, kel
+        potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
+        return potential, force.reshape(-1)[self.free] - load * self.f_free, kel
 
     def coupling(self, kel, u_D):
         """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
@@ -150,11 +153,22 @@ class Equations:
 
 
 class Problem(NamedTuple):
-    """What one solve needs besides the state: the design's quadrature, the boundary data, the material."""
+    """What one solve needs besides the state: the design's quadrature, the boundary data, the material.
+    The load path runs from the start (load factor 0) to the target (1): the prescribed displacements
+    from u_D0 to u_D and the dead load's factor from load0 to 1.  A cold solve starts at rest (u_D0 = 0,
+    load0 = 0); a warm one at another sample's equilibrium (its u_D0, the full dead load)."""
     quad: Quadrature
     u_D: jnp.ndarray
     mat: jnp.ndarray
     size: jnp.ndarray
+    u_D0: jnp.ndarray
+    load0: jnp.ndarray
+
+    def boundary(self, lam):
+        return self.u_D0 + lam * (self.u_D - self.u_D0)
+
+    def load(self, lam):
+        return self.load0 + lam * (1.0 - self.load0)
 
 
 class Linearised(NamedTuple):
@@ -166,34 +180,52 @@ class Linearised(NamedTuple):
     rhs: jnp.ndarray
 
 
-def setup(eqs: Equations, opts: NewtonOptions, X, d, mat) -> tuple[Problem, _State]:
-    """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input)."""
+def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, _State]:
+    """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input).  Cold
+    (start None): at rest, the first iteration a predictor.  Warm (start = (u_free0, u_D0): another
+    sample's equilibrium, under the full dead load): the first iteration a corrector at load factor 0,
+    which closes at once where the start is an equilibrium of this design, and otherwise brings it
+    there (a design that moved since); the load then walks from u_D0 to this sample's u_D.  The
+    tolerance is the cold solve's either way (the force scale of the full load, from the tangent at
+    rest), so a warm answer meets the same test as a cold one."""
     quad = quadrature(eqs.disc, X)
-    zero = jnp.zeros(eqs.disc.n_dofs, X.dtype)
+    u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
     scalar = lambda v: jnp.asarray(v, X.dtype)
-    init = _State(zero, scalar(0.0), zero, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
+    zero = jnp.zeros(eqs.disc.n_dofs, X.dtype)
+    size = jnp.max(jnp.ptp(X, axis=0))
+    if start is None:
+        p = Problem(quad, u_D, mat, size, jnp.zeros_like(u_D), scalar(0.0))
+        u0, tol, k_ref, predictor = zero, scalar(0.0), scalar(1.0), True
+    else:
+        u0, u_D0 = start
+        finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0))
+        p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
+        _, _, kel = eqs.linearise(quad, zero, jnp.zeros_like(u_D), 0.0, mat)
+        tol, k_ref = _scales(eqs, opts, p, kel)
+        predictor = False
+    init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(predictor),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-                  jnp.where(finite, RUNNING, NONFINITE_INPUT), scalar(0.0), scalar(1.0), scalar(jnp.inf),
+                  jnp.where(finite, RUNNING, NONFINITE_INPUT), tol, k_ref, scalar(jnp.inf),
                   jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0), scalar(0.0))
-    return Problem(quad, eqs.A @ d, mat, jnp.max(jnp.ptp(X, axis=0))), init
+    return p, init
+
+
+def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
+    """The tolerance and the stiffness scale k_ref, from the element tangents at rest: the norm of the
+    linearised out-of-balance force of the full load, and the largest diagonal entry."""
+    kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
+    f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
+    return opts.rtol * f_ref + opts.atol * kdiag * p.size, kdiag
 
 
 def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Linearised:
     """First half of an iteration: linearise at the state; a corrector that meets the tolerance closes
     its load step (and the solve, at full load); the right-hand side of the next step."""
-    f_free = eqs.f_free
-    E0, g, kel = eqs.linearise(p.quad, s.u, s.lam, p.u_D, p.mat)
+    E0, g, kel = eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat)
     rnorm = jnp.linalg.norm(g)
-    first = s.it == 0
-    kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
-    k_ref = jnp.where(first, kdiag, s.k_ref)
-
-    def initial_tolerance(_):  # force scale of the full load, from the first linearisation only
-        f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - f_free) + jnp.linalg.norm(f_free)
-        return opts.rtol * f_ref + opts.atol * kdiag * p.size
-
-    tol = jax.lax.cond(first, initial_tolerance, lambda _: s.tol, None)
+    first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest: the scales come from this tangent
+    tol, k_ref = jax.lax.cond(first, lambda _: _scales(eqs, opts, p, kel), lambda _: (s.tol, s.k_ref), None)
     step_done = (~s.predictor) & (rnorm <= tol)
     finished = step_done & (s.lam >= 1.0)
     lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
@@ -202,7 +234,8 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Lin
     dlam = jnp.where(step_done, jnp.minimum(s.dlam * jnp.where(quick, opts.grow, 1.0), 1.0 - s.lam), s.dlam)
     predictor = s.predictor | step_done
     status = jnp.where(finished, CONVERGED, s.status)
-    rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * p.u_D) - dlam * f_free), -g)
+    rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * (p.u_D - p.u_D0)) - dlam * (1.0 - p.load0) * eqs.f_free),
+                    -g)
     state = s._replace(u_conv=u_conv, lam_conv=lam_conv, dlam=dlam, predictor=predictor,
                        steps=s.steps + step_done, status=status, tol=tol, k_ref=k_ref, rnorm=rnorm)
     return Linearised(state, E0, g, kel, rhs)
@@ -241,7 +274,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     def correct(_):
         # bounded line search on the energy at fixed load
         descent = finite & (slope < 0)
-        energy = lambda u: eqs.potential(p.quad, u, s.lam, p.u_D, p.mat)  # noqa: E731
+        energy = lambda u: eqs.potential(p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat)  # noqa: E731
         a, ok = _line_search(energy, opts, s.u, step, E0, -jnp.abs(slope), a0)
         return a, (descent | flipped) & ok, descent
 
@@ -313,7 +346,7 @@ def _next_shift(s: _State, du, slope, finite, descent, cut):
 def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
     """The largest step along (du, dlam) that keeps J > 0 at every Gauss point (0 where undefined), and
     with contact no pore's walls meeting (exact up to `horizon`, the longest step the caller takes)."""
-    a = max_step(eqs.disc, p.quad, eqs.full(u, lam, p.u_D), eqs.full(du, dlam, p.u_D), horizon)
+    a = max_step(eqs.disc, p.quad, eqs.full(u, p.boundary(lam)), eqs.full(du, dlam * (p.u_D - p.u_D0)), horizon)
     return jnp.where(jnp.isnan(a), 0.0, a)
 
 
@@ -335,7 +368,7 @@ def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearise
     def body(c):
         a, _, k = c
         a = 0.5 * a
-        return a, eqs.potential(p.quad, s.u + a * v, s.lam, p.u_D, p.mat), k + 1
+        return a, eqs.potential(p.quad, s.u + a * v, p.boundary(s.lam), p.load(s.lam), p.mat), k + 1
 
     a, Ea, _ = jax.lax.while_loop(lambda c: ~falls(c[0], c[1]) & (c[2] < opts.max_backtracks), body,
                                   (2.0 * a0, jnp.inf, 0))
