@@ -6,9 +6,10 @@
 
 Each scene runs in two fresh processes sharing an empty compilation cache: the first pays the
 compilation (its first step is `first_step_seconds`), the second finds the kernels in JAX's persistent
-cache (`second_process_first_step_seconds`).  The second then times `--steps` further steps twice in
-alternation, once on one thread and once on the default (one per core), so that their ratio comes from
-one process on the same machine state.  Early in training the network's actuations are small and
+cache (`second_process_first_step_seconds`).  The second then times `--steps` further steps three
+times in alternation, on one thread, on the default (one per core) and with solver.warm_start=true, so
+that their ratios come from one process on the same machine state; each variant's Newton iterations
+per sample count every solve (a warm one redone from rest and an audit's included).  Early in training the network's actuations are small and
 solves are cheap; `--init-from scene=<run dir>` starts from a trained run's newest checkpoint instead
 (the steps a long run spends most of its time in).
 """
@@ -34,7 +35,7 @@ def stats(xs):
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
-def trainer_for(scene: str, workers: int, init_from: str | None):
+def trainer_for(scene: str, workers: int, init_from: str | None, *more: str):
     from hydra import compose, initialize_config_dir
 
     from nma.config import CONF_DIR
@@ -43,7 +44,7 @@ def trainer_for(scene: str, workers: int, init_from: str | None):
 
     register()
     overrides = [f"experiment={EXPERIMENTS[scene]}", "logger=none", "trainer.progress=false",
-                 f"solver.workers={workers}"] + ([f"trainer.init_from={init_from}"] if init_from else [])
+                 f"solver.workers={workers}", *more] + ([f"trainer.init_from={init_from}"] if init_from else [])
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     return make_trainer(validate(cfg), Path(tempfile.mkdtemp(prefix="nma-bench-")))
@@ -70,13 +71,18 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
     if compare:
         single = trainer_for(scene, 1, init_from)
         timed_step(single)  # its own compile
-        single.state = trainer.state
-        runs = {"threads": ([], []), "one_thread": ([], [])}
-        clocks = {"threads": trainer.sim.backend.clock.seconds, "one_thread": single.sim.backend.clock.seconds}
+        warm = trainer_for(scene, 0, init_from, "solver.warm_start=true")
+        timed_step(warm)  # its first step keeps equilibria, its second compiles the warm start
+        timed_step(warm)
+        single.state = warm.state = trainer.state
+        variants = {"one_thread": single, "threads": trainer, "warm": warm}
+        runs = {name: ([], []) for name in variants}
+        clocks = {name: tr.sim.backend.clock.seconds for name, tr in variants.items()}
         before = {name: dict(c) for name, c in clocks.items()}
+        counts = {name: dict(tr.sim.backend.stats) for name, tr in variants.items()}
         for _ in range(steps):
-            state = trainer.state  # both take the same step from the same state
-            for name, tr in (("one_thread", single), ("threads", trainer)):
+            state = trainer.state  # every variant takes the same step from the same state
+            for name, tr in variants.items():
                 tr.state = state
                 wall, cpu = timed_step(tr)
                 runs[name][0].append(wall)
@@ -84,11 +90,17 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
         for name, (walls, util) in runs.items():
             spent = {k: (v - before[name].get(k, 0.0)) / steps for k, v in clocks[name].items()}
             outside = np.mean(walls) - spent.pop("forward_batches", 0.0) - spent.pop("backward_batches", 0.0)
+            solved = variants[name].sim.backend.stats
             out[name] = {"step_seconds": stats(walls), "per_sample_seconds": stats(np.array(walls) / out["batch_size"]),
                          "cpu_utilisation": float(np.median(util)),
+                         # every Newton iteration spent, a warm start's that was redone cold included
+                         "newton_iterations_per_sample":
+                             (solved["newton_iterations"] - counts[name]["newton_iterations"]) / (steps * out["batch_size"]),
                          # per step; solver phases summed over threads, the rest is wall time outside the solver
                          "where_the_time_goes": {**spent, "outside_the_solver": float(outside)}}
+        out["warm"]["warm_starts"] = {**warm.sim.warm_starts.stats, "stopped": warm.sim.warm_starts.stopped}
         out["speedup"] = out["one_thread"]["step_seconds"]["median"] / out["threads"]["step_seconds"]["median"]
+        out["warm_speedup"] = out["threads"]["step_seconds"]["median"] / out["warm"]["step_seconds"]["median"]
         out["linear_solver_counts"] = dict(trainer.sim.backend.stats)
     return out
 
@@ -130,12 +142,17 @@ def breakdown(results: dict) -> str:
 
 def table(results: dict) -> str:
     rows = ["| scene | dofs | batch | step s (min / median), threads | one thread | speedup | CPU use | "
-            "first step s | 2nd process first step s |", "|---|---|---|---|---|---|---|---|---|"]
+            "warm starts: step s | Newton iterations per sample, cold / warm | audits on the cold equilibrium | "
+            "first step s | 2nd process first step s |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for scene, r in results.items():
-        t, o = r["threads"]["step_seconds"], r["one_thread"]["step_seconds"]
+        t, o, w = r["threads"]["step_seconds"], r["one_thread"]["step_seconds"], r["warm"]["step_seconds"]
+        ws = r["warm"]["warm_starts"]
         rows.append(f"| {scene} | {r['dofs']} | {r['batch_size']} | {t['min']:.3f} / {t['median']:.3f} "
                     f"({r['workers']} threads) | {o['min']:.3f} / {o['median']:.3f} | {r['speedup']:.2f}x | "
-                    f"{r['threads']['cpu_utilisation']:.2f} cores | {r['first_step_seconds']:.2f} | "
+                    f"{r['threads']['cpu_utilisation']:.2f} cores | {w['min']:.3f} / {w['median']:.3f} "
+                    f"({r['warm_speedup']:.2f}x) | {r['threads']['newton_iterations_per_sample']:.1f} / "
+                    f"{r['warm']['newton_iterations_per_sample']:.1f} | {ws['audits_same']} of {ws['audits']}"
+                    f"{' (stopped)' if ws['stopped'] else ''} | {r['first_step_seconds']:.2f} | "
                     f"{r['second_process_first_step_seconds']:.2f} |")
     return "\n".join(rows)
 

@@ -34,10 +34,14 @@ class Simulator:
         if options.escape_saddles and not getattr(self.backend, "reports_inertia", False):
             raise ConfigError(f"solver.escape_saddles needs a linear solver that reports the inertia of its "
                               f"factorisation (pardiso); solver.linear={self.backend.name} does not")
+        if options.warm_start and self.backend.traceable:
+            raise ConfigError(f"solver.warm_start needs a host linear solver (pardiso, superlu): "
+                              f"solver.linear={self.backend.name} solves a batch in lockstep from rest")
         self.equations = Equations(disc)
         # threads solving a batch's samples at once (a traced backend batches under vmap instead)
         self.workers = 1 if self.backend.traceable else workers or available_cores()
-        self.equilibrium = make_equilibrium(self.equations, self.backend, options, self.workers)
+        # warm_starts: the equilibria kept as starting points (solver.warm_start), None where none are
+        self.equilibrium, self.warm_starts = make_equilibrium(self.equations, self.backend, options, self.workers)
         self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
         self._solve = jax.jit(lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat))
         self._energy = jax.jit(lambda X, u, mat: strain_energy(disc, quadrature(disc, X), u, mat))

@@ -27,6 +27,7 @@ BAD_RUN = [
     ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
     ("scene=translaton", "scene=translaton is unknown; choose one of"),
     ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_double_spec',"),
+    ("solver=dense solver.warm_start=true", "solver.warm_start needs a host linear solver (pardiso, superlu)"),
     ("optim.lr=inf", "optim.lr must be a finite number in (0, inf), got inf"),
     ("optim.lr=nan", "optim.lr must be a finite number in (0, inf), got nan"),
     ("optim.lr_scale.corners=inf", "optim.lr_scale.corners must be a finite number in [0, inf)"),

@@ -189,3 +189,64 @@ def test_escape_saddles_reaches_a_stable_equilibrium_below_the_saddle(simulator)
     assert energy["leaving"] < energy["plain"] - 1e-3 * abs(energy["plain"])
     assert float(sols["leaving"].info.residual) <= float(sols["leaving"].info.tolerance)
     assert leaving.backend.stats["saddles_left"] >= 1
+
+
+def _warm_and_cold(disc, **options):
+    opts = NewtonOptions(warm_start=True, **options)
+    return Simulator(disc, "superlu", opts, workers=1), Simulator(disc, "superlu", workers=1)
+
+
+def test_a_warm_start_reaches_the_cold_equilibrium_in_fewer_iterations():
+    """A solve started from a nearby actuation's equilibrium (and one of a slightly different design:
+    its first corrector, at load factor 0, brings the start to this design) lands on the equilibrium the
+    solve from rest finds, in fewer iterations; the same actuation again costs two linearisations."""
+    warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)))
+    mat = material(0.07, 0.3)
+    params = warm.init_params()
+    X = warm.reference_points(params)
+    first = warm.equilibrium_batch(X, jnp.array([[1.5, 1.0]]), mat)  # nothing kept: from rest
+    assert warm.warm_starts.stats["warm_solves"] == 0 and warm.warm_starts.stats["cold_solves"] == 1
+    moved = {**params, "radii": params["radii"] + 0.02}
+    for Xs in (X, warm.reference_points(moved)):
+        d = jnp.array([[1.8, 1.3]])
+        w, c = warm.equilibrium_batch(Xs, d, mat), cold.equilibrium_batch(Xs, d, mat)
+        assert bool(w.converged.all()) and bool(c.converged.all())
+        np.testing.assert_allclose(w.u, c.u, rtol=0, atol=1e-8 * float(jnp.max(jnp.abs(c.u))))
+        assert int(w.info.iterations[0]) < int(c.info.iterations[0])
+    assert warm.warm_starts.stats["warm_solves"] == 2
+    again = warm.equilibrium_batch(X, jnp.array([[1.5, 1.0]]), mat)
+    assert int(again.info.iterations[0]) <= 2
+    np.testing.assert_allclose(again.u, first.u, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(first.u))))
+
+
+def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it():
+    """The kept equilibrium nearest in actuation is taken, none where rest is nearer; every
+    warm_audit-th warm solve is also solved cold; once more than a tenth of at least eight audits found
+    another equilibrium, warm starts stop for good (and say why)."""
+    from nma.solver.implicit import WarmStarts
+
+    kept = WarmStarts(size=2, audit_every=2)
+    for k, d in enumerate(([1.0, 0.0], [0.0, 1.0], [3.0, 3.0])):
+        kept.keep(np.array(d), np.array([float(k)]), np.full(3, float(k)))
+    assert kept.start(np.array([1.0, 0.1])) is None  # [1, 0] was dropped (size 2), [0, 1] is farther than rest
+    near = kept.start(np.array([2.5, 2.5]))
+    assert near.u_D[0] == 2.0 and not near.audit
+    assert kept.start(np.array([0.1, 1.2])).audit  # the second warm start
+    for _ in range(9):
+        assert kept.audited(1e-12)
+    assert not kept.audited(0.3) and not kept.stopped  # 1 of 10
+    assert not kept.audited(0.3) and kept.stopped.startswith("2 of 11 audited")
+    assert kept.start(np.array([2.5, 2.5])) is None and kept.stats["audits_same"] == 9
+    with kept.paused():
+        assert kept.start(np.array([2.5, 2.5])) is None
+    assert not kept.enabled
+
+    warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)), warm_audit=1)
+    mat = material(0.07, 0.3)
+    X = warm.reference_points(warm.init_params())
+    warm.equilibrium_batch(X, jnp.array([[1.0, 0.5]]), mat)
+    w = warm.equilibrium_batch(X, jnp.array([[1.2, 0.4]]), mat)  # warm, then audited against a cold solve
+    st = warm.warm_starts.stats
+    assert st["audits"] == 1 and st["audits_same"] == 1 and st["audits_within_1e-8"] == 1
+    assert st["cold_solves"] == 2 and st["warm_solves"] == 1
+    np.testing.assert_allclose(w.u, cold.equilibrium_batch(X, jnp.array([[1.2, 0.4]]), mat).u, atol=1e-9)

@@ -91,8 +91,20 @@ class SolverConfig(Schema):
                                         "(Newton's model does not hold there)")
     escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
         "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
+    warm_start: bool = field(default=_NEWTON.warm_start, metadata={
+        "doc": "start a solve from the kept equilibrium nearest in actuation (host backends; docs/performance.md)"})
+    warm_pool: int = bounded(_NEWTON.warm_pool, "[1, 100000]", doc="equilibria kept as warm starts")
+    warm_iters: int = bounded(_NEWTON.warm_iters, "[1, 100000]",
+                              doc="iterations a warm solve may take before it is redone cold")
+    warm_audit: int = bounded(_NEWTON.warm_audit, "[0, 100000]",
+                              doc="every this many warm solves one is also solved cold and compared; 0: none")
     linear: str = "auto"   # a linear backend registered in nma.solver.linear (auto, pardiso, superlu, dense)
     workers: int = bounded(0, "[0, 1024]", doc="threads solving a batch's samples at once; 0 = one per core")
+
+    def check(self):
+        if self.warm_start and self.linear == "dense":  # the one traceable backend (nma.solver.linear)
+            self.fail("warm_start", "needs a host linear solver (pardiso, superlu): solver.linear=dense solves a "
+                                    "batch in lockstep from rest")
 
     def newton(self) -> NewtonOptions:
         """Newton's own settings, handed to the solver."""

@@ -15,6 +15,8 @@ Two drivers of the same Newton iteration (nma.solver.newton):
   step and the final state are checked for negative eigenvalues; a saddle is left along its most
   unstable mode and Newton goes on to a stable equilibrium (if leaving fails, the solve is redone
   without, so the option never costs convergence).
+  With solver.warm_start, a solve starts from the kept equilibrium nearest in actuation (WarmStarts)
+  and is redone from rest where that is not quick; audits compare warm answers with cold ones.
 Per-sample results do not depend on the number of threads: samples share nothing but read-only data.
 """
 from __future__ import annotations
@@ -24,15 +26,17 @@ import os
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..mechanics.energy import force_and_tangents, quadrature
-from .newton import (CONVERGED, RUNNING, Equations, Equilibrium, advance, hold, leave_saddle, linearise,
-                     newton_solve, result, setup)
+from .newton import (CONVERGED, ITERATION_LIMIT, RUNNING, Equations, Equilibrium, advance, hold, leave_saddle,
+                     linearise, newton_solve, result, setup)
 from .options import NewtonOptions
 
 KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
@@ -40,6 +44,100 @@ MAX_SADDLE_CHECKS = 16  # converged load steps checked for stability per solve (
 SHIFT_BISECTIONS = 6  # bisections (in log shift) bracketing a saddle's lowest eigenvalue to a factor 10^(1/64)
 INVERSE_ITERATIONS = 10  # block inverse iterations for a saddle's most unstable modes
 SADDLE_BLOCK = 4  # modes sought at once (the lowest eigenvalues of a symmetric structure come in near pairs)
+
+
+SAME_EQUILIBRIUM = 1e-6  # an audited warm solve whose displacements differ from the cold one's by more
+                         # (max norm, relative to the cold one's largest) reached another equilibrium
+MIN_AUDITS, MAX_OTHER_EQUILIBRIA = 8, 0.1  # warm starts stop once more than this fraction of audits differ
+KEPT_OTHER_EQUILIBRIA = 100  # audits that found another equilibrium, recorded (difference, energies)
+
+
+class Start(NamedTuple):
+    """Where a warm solve starts: a kept equilibrium's free displacements and prescribed ones."""
+    u_free: np.ndarray
+    u_D: np.ndarray
+    audit: bool  # also solve cold, and take the cold answer where they differ
+
+
+class WarmStarts:
+    """The equilibria kept as starting points of later solves: the last `size` converged ones, each
+    with its actuation.  A solve starts from the one nearest in actuation, where that is nearer than
+    rest.  The order of what is kept and taken does not depend on threads (a batch takes its starts
+    before it runs and keeps its results after, in sample order), and `clear()` empties it: the trainer
+    does at every checkpoint, so that a run resumed there solves exactly as one not interrupted.
+
+    A structure with several equilibria under one actuation (a near-mechanism, a buckled wall) can
+    reach another from a warm start than from rest.  Every `audit_every`-th warm solve is therefore
+    also solved cold; where the two differ the cold answer is taken, and once more than `max_other`
+    of at least MIN_AUDITS audits differed, warm starts stop for good (`stopped` says why).  `stats`
+    counts all of it."""
+
+    def __init__(self, size: int, audit_every: int, max_other: float = MAX_OTHER_EQUILIBRIA):
+        self.size, self.audit_every, self.max_other = size, audit_every, max_other
+        self.enabled, self.stopped = True, ""
+        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free)
+        self._taken = 0
+        self._lock = threading.Lock()
+        self.other_equilibria: list[dict] = []
+        self.stats = {"warm_solves": 0, "warm_converged": 0, "warm_iterations": 0, "cold_solves": 0,
+                      "cold_iterations": 0, "audits": 0, "audits_same": 0, "audits_within_1e-8": 0,
+                      "audit_largest_difference": 0.0}
+
+    def clear(self) -> None:
+        self._kept.clear()
+
+    def start(self, d: np.ndarray) -> Start | None:
+        """The start of a solve at actuation d: the kept equilibrium nearest to it, None where nothing
+        kept is nearer than rest (or warm starts are off)."""
+        if not (self.enabled and self._kept):
+            return None
+        dist = [np.linalg.norm(d - kd) for kd, _, _ in self._kept]
+        i = int(np.argmin(dist))
+        if not dist[i] < np.linalg.norm(d):
+            return None
+        self._taken += 1
+        _, u_D, u_free = self._kept[i]
+        return Start(u_free, u_D, self.audit_every > 0 and self._taken % self.audit_every == 0)
+
+    def keep(self, d, u_D, u_free) -> None:
+        if self.enabled:
+            self._kept.append((np.array(d), np.array(u_D), np.array(u_free)))
+            del self._kept[:-self.size]
+
+    def record(self, **counts) -> None:
+        with self._lock:  # a batch's samples report from several threads
+            for k, v in counts.items():
+                self.stats[k] = max(self.stats[k], v) if k == "audit_largest_difference" else self.stats[k] + v
+
+    def audited(self, difference: float, energies=None) -> bool:
+        """Record an audit (the warm and cold displacements' relative difference, and where they differ
+        the two equilibria's energies, warm and cold); whether the warm answer stands."""
+        same = difference <= SAME_EQUILIBRIUM
+        with self._lock:
+            if not same and len(self.other_equilibria) < KEPT_OTHER_EQUILIBRIA:
+                self.other_equilibria.append({"difference": difference, **(
+                    {"energy_warm": energies[0], "energy_cold": energies[1]} if energies else {})})
+            st = self.stats
+            st["audits"] += 1
+            st["audits_same"] += int(same)
+            st["audits_within_1e-8"] += int(difference <= 1e-8)
+            st["audit_largest_difference"] = max(st["audit_largest_difference"], difference)
+            other = st["audits"] - st["audits_same"]
+            if self.enabled and st["audits"] >= MIN_AUDITS and other > self.max_other * st["audits"]:
+                self.enabled = False
+                self.stopped = (f"{other} of {st['audits']} audited warm solves reached another equilibrium than "
+                                f"the cold solve: this design has several under one actuation")
+                self._kept.clear()
+        return same
+
+    @contextmanager
+    def paused(self):
+        """Cold solves only (a run's final evaluation: its metric is the cold solves')."""
+        enabled, self.enabled = self.enabled, False
+        try:
+            yield
+        finally:
+            self.enabled = enabled and not self.stopped
 
 
 def available_cores() -> int:
@@ -53,6 +151,11 @@ def tangents_at(eqs: Equations, X, d, mat, u_free):
     """Element tangents at a converged state (the adjoint's matrix)."""
     _, kel = force_and_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat)
     return kel
+
+
+def energy_at(eqs: Equations, X, d, mat, u_free):
+    """The potential energy of a state at full load."""
+    return eqs.potential(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
 
 
 def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
@@ -71,10 +174,14 @@ class HostNewton:
         self.workers = workers or available_cores()
         # one dispatch and one wait per iteration: each kernel ends with the next linearisation
         self._start = jax.jit(partial(_start, eqs, opts))
+        self._start_warm = jax.jit(partial(_start_warm, eqs, opts))
+        self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
+        self._A = np.asarray(eqs.A)
         self._step = jax.jit(partial(_step, eqs, opts))
         self._hold = jax.jit(partial(hold, opts))
         self._leave = jax.jit(partial(leave_saddle, eqs, opts))
         self._tangents = jax.jit(partial(tangents_at, eqs))
+        self._energy = jax.jit(partial(energy_at, eqs))
         self._pullback = jax.jit(partial(pullback, eqs))
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-newton") if self.workers > 1 else None
         self._kept: OrderedDict[int, object] = OrderedDict()
@@ -85,28 +192,59 @@ class HostNewton:
         return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
 
     # -- one sample
-    def solve(self, X, d, mat, ws):
-        if not (self.opts.escape_saddles and self.backend.reports_inertia):
-            return self._solve(X, d, mat, ws, escape=False)
-        u, info = self._solve(X, d, mat, ws, escape=True)
-        if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
-            u, info = self._solve(X, d, mat, ws, escape=False)
+    def solve(self, X, d, mat, ws, start: Start | None = None):
+        """One sample's equilibrium: from `start` (WarmStarts) where given and it converges within
+        warm_iters iterations, else cold.  An audited warm solve is also solved cold, and the cold
+        answer taken where they differ."""
+        if start is not None:
+            u, info = self._solve_escaping(X, d, mat, ws, (start.u_free, start.u_D), self.opts.warm_iters)
+            converged = int(info.status) == CONVERGED
+            self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
+            if converged and not start.audit:
+                return u, info
+            if converged:
+                cold, cold_info = self._cold(X, d, mat, ws)
+                if int(cold_info.status) != CONVERGED:
+                    return u, info
+                u, cold = np.asarray(u), np.asarray(cold)
+                difference = float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300))
+                energies = None if difference <= SAME_EQUILIBRIUM else tuple(
+                    float(self._energy(X, d, mat, v)) for v in (u, cold))
+                same = self.warm.audited(difference, energies)
+                return (u, info) if same else (cold, cold_info)
+        return self._cold(X, d, mat, ws)
+
+    def _cold(self, X, d, mat, ws):
+        u, info = self._solve_escaping(X, d, mat, ws, None, None)
+        if self.warm is not None:
+            self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
         return u, info
 
-    def _solve(self, X, d, mat, ws, escape: bool):
+    def _solve_escaping(self, X, d, mat, ws, start, budget):
+        if not (self.opts.escape_saddles and self.backend.reports_inertia):
+            return self._solve(X, d, mat, ws, False, start, budget)
+        u, info = self._solve(X, d, mat, ws, True, start, budget)
+        if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
+            u, info = self._solve(X, d, mat, ws, False, start, budget)
+        return u, info
+
+    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None):
         kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
         checked = set()  # converged load steps whose stability was checked (each once)
         with kernels():
-            p, s, lin = self._start(X, d, mat)
+            p, s, lin = self._start(X, d, mat) if start is None else self._start_warm(X, d, mat, *start)
         while True:
             with kernels():
-                status, next_status, shift, predictor, steps = jax.device_get(
-                    (s.status, lin.state.status, lin.state.shift, lin.state.predictor, lin.state.steps))
+                status, next_status, shift, predictor, steps, it = jax.device_get(
+                    (s.status, lin.state.status, lin.state.shift, lin.state.predictor, lin.state.steps, s.it))
             # a converged state (a load step's, seen at the predictor that follows it, or the final one)
             # whose Hessian has negative eigenvalues is a saddle: leave it along its unstable mode
             at_converged = next_status == CONVERGED or (next_status == RUNNING and predictor)
             check = escape and at_converged and int(steps) not in checked and len(checked) < MAX_SADDLE_CHECKS
             if status != RUNNING:  # lin (of a state that ended) is not used
+                break
+            if budget is not None and next_status == RUNNING and it >= budget:  # a warm start that is not quick
+                s = self._hold(lin)._replace(status=jnp.asarray(ITERATION_LIMIT))
                 break
             if next_status != RUNNING and not check:
                 s = self._hold(lin)
@@ -124,6 +262,8 @@ class HostNewton:
             du = ws.solve(lin.rhs)
             with kernels():
                 s, lin = self._step(p, lin, du)
+        self.backend.count("newton_solves")
+        self.backend.count("newton_iterations", int(s.it))
         return result(s)
 
     def _leave_saddle(self, p, lin, ws):
@@ -183,9 +323,12 @@ class HostNewton:
         lead = np.shape(d)[:-1]
         Xs, ds, mats = (_samples(a, lead) for a in (X, d, mat))
 
+        # the starts are taken before the batch runs and its results kept after, in sample order
+        starts = [self.warm.start(d) if self.warm else None for d in ds]
+
         def one(i):
             ws = self.backend.workspace()
-            u, info = self.solve(Xs[i], ds[i], mats[i], ws)
+            u, info = self.solve(Xs[i], ds[i], mats[i], ws, starts[i])
             token = 0
             if keep:
                 token = next(self._tokens)
@@ -197,7 +340,12 @@ class HostNewton:
                 self.backend.release(ws)
             return np.asarray(u), jax.tree_util.tree_map(np.asarray, info), np.int64(token)
 
-        return _stack(self._map(one, range(len(ds))), lead)
+        solved = self._map(one, range(len(ds)))
+        if self.warm is not None:
+            for d, (u, info, _) in zip(ds, solved):
+                if int(info.status) == CONVERGED:
+                    self.warm.keep(d, self._A @ d, u)
+        return _stack(solved, lead)
 
     def _backward_batch(self, X, d, mat, u_free, u_bar, token):
         lead = np.shape(d)[:-1]
@@ -221,6 +369,11 @@ def _start(eqs, opts, X, d, mat):
     return p, s, linearise(eqs, opts, p, s)
 
 
+def _start_warm(eqs, opts, X, d, mat, u0, u_D0):
+    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0))
+    return p, s, linearise(eqs, opts, p, s)
+
+
 def _step(eqs, opts, p, lin, du):
     s = advance(eqs, opts, p, lin, du)
     return s, linearise(eqs, opts, p, s)
@@ -238,17 +391,21 @@ def _samples(a, lead: tuple) -> np.ndarray:
 
 
 def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
-    """Return equilibrium(X, d, mat) -> Equilibrium (u (n_points, 2), NewtonInfo), differentiable in X, d, mat."""
+    """Return (equilibrium, warm starts): equilibrium(X, d, mat) -> Equilibrium (u (n_points, 2),
+    NewtonInfo), differentiable in X, d, mat; the WarmStarts it keeps (None where it keeps none: warm
+    starts off, or a traced backend, whose batch runs in lockstep from rest)."""
+    warm = None
     if backend.traceable:
         solve_free = _traced_solve(eqs, backend, opts)
     else:
-        solve_free = _host_solve(HostNewton(eqs, backend, opts, workers))
+        newton = HostNewton(eqs, backend, opts, workers)
+        solve_free, warm = _host_solve(newton), newton.warm
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
         return Equilibrium(eqs.full(u_free, eqs.A @ d), info)
 
-    return equilibrium
+    return equilibrium, warm
 
 
 def _traced_solve(eqs, backend, opts):

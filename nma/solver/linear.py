@@ -101,12 +101,14 @@ class HostBackend:
     def __init__(self, disc: Discretisation):
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
-        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "saddles_left": 0}
+        # newton_solves and newton_iterations count every solve, a warm start's that was redone cold too
+        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "saddles_left": 0, "newton_solves": 0,
+                      "newton_iterations": 0}
         self.clock = Stopwatch()
 
-    def count(self, what: str) -> None:
+    def count(self, what: str, n: int = 1) -> None:
         with self._lock:
-            self.stats[what] += 1
+            self.stats[what] += n
 
     def workspace(self) -> Workspace:
         return Workspace(self)

@@ -182,12 +182,12 @@ class Linearised(NamedTuple):
 
 def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, _State]:
     """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input).  Cold
-    (start None): at rest, the first iteration a predictor.  Warm (start = (u_free0, u_D0): another
-    sample's equilibrium, under the full dead load): the first iteration a corrector at load factor 0,
-    which closes at once where the start is an equilibrium of this design, and otherwise brings it
-    there (a design that moved since); the load then walks from u_D0 to this sample's u_D.  The
-    tolerance is the cold solve's either way (the force scale of the full load, from the tangent at
-    rest), so a warm answer meets the same test as a cold one."""
+    (start None): at rest.  Warm (start = (u_free0, u_D0): another sample's equilibrium, under the full
+    dead load): the load walks from u_D0 to this sample's u_D.  Either way the first iteration is a
+    predictor, whose right-hand side -(g + K_fD (u_D - u_D0)) also carries the start's own residual g
+    where the design moved since: the first-order response to the change of design and actuation
+    together.  The tolerance is the cold solve's either way (the force scale of the full load, from
+    the tangent at rest), so a warm answer meets the same test as a cold one."""
     quad = quadrature(eqs.disc, X)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
@@ -196,15 +196,14 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     size = jnp.max(jnp.ptp(X, axis=0))
     if start is None:
         p = Problem(quad, u_D, mat, size, jnp.zeros_like(u_D), scalar(0.0))
-        u0, tol, k_ref, predictor = zero, scalar(0.0), scalar(1.0), True
+        u0, tol, k_ref = zero, scalar(0.0), scalar(1.0)
     else:
         u0, u_D0 = start
         finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0))
         p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
         _, _, kel = eqs.linearise(quad, zero, jnp.zeros_like(u_D), 0.0, mat)
         tol, k_ref = _scales(eqs, opts, p, kel)
-        predictor = False
-    init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(predictor),
+    init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   jnp.where(finite, RUNNING, NONFINITE_INPUT), tol, k_ref, scalar(jnp.inf),
                   jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0), scalar(0.0))

@@ -29,3 +29,11 @@ class NewtonOptions:
     # the stable (buckled) equilibrium.  Off by default: the paper's solver, and every reproduction
     # measured so far, takes the first stationary point Newton reaches.
     escape_saddles: bool = False
+    # warm starts (host backends): a solve starts from the kept equilibrium nearest in actuation (of
+    # the last warm_pool solves) where that is nearer than rest, and walks the load from there; one
+    # that has not converged within warm_iters iterations is redone cold.  Every warm_audit-th warm
+    # solve is also solved cold, and the cold answer taken where the two differ (a branch jump).
+    warm_start: bool = False
+    warm_pool: int = 64
+    warm_iters: int = 30
+    warm_audit: int = 16

@@ -92,6 +92,7 @@ class Trainer:
             params = self._init_from(Path(tcfg.init_from), params, exact_init)
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
+        self._warm_stop_said = False
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
         self._update = jax.jit(self._apply)
         self._evaluate = jax.jit(self._forward)
@@ -174,6 +175,11 @@ class Trainer:
             bad = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
             raise failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[bad], info),
                           f"step {step}: no sample of the batch converged; ")
+        warm = self.sim.warm_starts
+        if warm is not None and warm.stopped and not self._warm_stop_said:
+            log.warning("step %d: warm starts stopped: %s; the rest of the run solves from rest", step + 1,
+                        warm.stopped)
+            self._warm_stop_said = True
         mean_grads = unravel(jnp.asarray(total[:-3] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
         self.state = {"params": params, "opt_state": opt_state, "step": step + 1}
@@ -233,6 +239,9 @@ class Trainer:
         record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
                   "failed_solves": int((~ok).sum()), **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
+        warm = self.sim.warm_starts
+        if warm is not None:  # how the run's solves started, and whether warm starts held
+            record["warm_starts"] = {**warm.stats, "stopped": warm.stopped, "other_equilibria": warm.other_equilibria}
         return Evaluation(record, X, d, u, out, ts, ok, states)
 
     # -- the loop ---------------------------------------------------------------------------------------
@@ -256,6 +265,8 @@ class Trainer:
         return {**self.state, "history": json.dumps(self.history), "config": json.dumps(self.fingerprint)}
 
     def save(self):
+        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: with none kept
+            self.sim.warm_starts.clear()
         if self.world.is_root:
             checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload())
 
@@ -303,7 +314,7 @@ class Trainer:
             step = rec["step"]
             if step % self.cfg.eval_every == 0 or step == self.cfg.steps:
                 if self.world.is_root:
-                    ev = self.evaluate(None if step == self.cfg.steps else self.eval_subset())
+                    ev = self._final_evaluation() if step == self.cfg.steps else self.evaluate(self.eval_subset())
                     r = ev.record
                     rec[self.task.metric_name] = r[self.task.metric_name]
                     rec["invalid_states"] = r["invalid_states"]
@@ -329,5 +340,16 @@ class Trainer:
         if bar:
             bar.close()
         if self.world.is_root and last_eval is None:
-            last_eval = self.evaluate()
+            last_eval = self._final_evaluation()
         return last_eval
+
+    def _final_evaluation(self) -> Evaluation:
+        """The run's metric: every evaluation sample, each solved from rest (warm starts paused), so that
+        it means what a cold solve of the design means, however training started its solves."""
+        warm = self.sim.warm_starts
+        if warm is None:
+            return self.evaluate()
+        if warm.stopped:
+            log.warning("warm starts stopped during training: %s", warm.stopped)
+        with warm.paused():
+            return self.evaluate()
