@@ -98,7 +98,7 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
                              (solved["newton_iterations"] - counts[name]["newton_iterations"]) / (steps * out["batch_size"]),
                          # per step; solver phases summed over threads, the rest is wall time outside the solver
                          "where_the_time_goes": {**spent, "outside_the_solver": float(outside)}}
-        out["warm"]["warm_starts"] = {**warm.sim.warm_starts.stats, "stopped": warm.sim.warm_starts.stopped}
+        out["warm"]["warm_starts"] = dict(warm.sim.warm_starts.stats)
         out["speedup"] = out["one_thread"]["step_seconds"]["median"] / out["threads"]["step_seconds"]["median"]
         out["warm_speedup"] = out["threads"]["step_seconds"]["median"] / out["warm"]["step_seconds"]["median"]
         out["linear_solver_counts"] = dict(trainer.sim.backend.stats)
@@ -152,7 +152,7 @@ def table(results: dict) -> str:
                     f"{r['threads']['cpu_utilisation']:.2f} cores | {w['min']:.3f} / {w['median']:.3f} "
                     f"({r['warm_speedup']:.2f}x) | {r['threads']['newton_iterations_per_sample']:.1f} / "
                     f"{r['warm']['newton_iterations_per_sample']:.1f} | {ws['audits_same']} of {ws['audits']}"
-                    f"{' (stopped)' if ws['stopped'] else ''} | {r['first_step_seconds']:.2f} | "
+                    f"{' (stopped)' if ws['stops'] else ''} | {r['first_step_seconds']:.2f} | "
                     f"{r['second_process_first_step_seconds']:.2f} |")
     return "\n".join(rows)
 

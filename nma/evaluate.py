@@ -51,7 +51,7 @@ def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
                             trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
     trainer = make_trainer(s, run / "evaluate", exact_init=True)  # the run's own parameters, all of them
     t0 = time.perf_counter()
-    ev = trainer.evaluate().record
+    ev = trainer.final_evaluation().record  # every sample, from rest
     task = trainer.task
     return {"fidelity": fidelity_record(trainer.sim.disc, fidelity),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],

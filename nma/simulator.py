@@ -8,6 +8,8 @@
 """
 from __future__ import annotations
 
+import contextlib
+
 from functools import partial
 from typing import Any, Mapping
 
@@ -22,7 +24,7 @@ from .mechanics.energy import quadrature, strain_energy
 from .solver.implicit import available_cores, make_equilibrium, tangents_at
 from .solver.linear import make_backend
 from .solver.newton import Equations, Equilibrium
-from .solver.options import NewtonOptions
+from .solver.options import WARM_START_NEEDS_HOST, NewtonOptions
 
 
 class Simulator:
@@ -35,8 +37,7 @@ class Simulator:
             raise ConfigError(f"solver.escape_saddles needs a linear solver that reports the inertia of its "
                               f"factorisation (pardiso); solver.linear={self.backend.name} does not")
         if options.warm_start and self.backend.traceable:
-            raise ConfigError(f"solver.warm_start needs a host linear solver (pardiso, superlu): "
-                              f"solver.linear={self.backend.name} solves a batch in lockstep from rest")
+            raise ConfigError(f"solver.warm_start {WARM_START_NEEDS_HOST}")
         self.equations = Equations(disc)
         # threads solving a batch's samples at once (a traced backend batches under vmap instead)
         self.workers = 1 if self.backend.traceable else workers or available_cores()
@@ -83,10 +84,11 @@ class Simulator:
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
     def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
-        """Eager forward solve, its result on the host. Unless it converged: raises SolverError (with how
-        far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
+        """Eager forward solve from rest, its result on the host. Unless it converged: raises SolverError
+        (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
         d = self.check_actuation(d)
-        eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
+        with self.warm_starts.paused() if self.warm_starts is not None else contextlib.nullcontext():
+            eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
         if throw and not eq.converged:
             raise self.failure(eq, d, mat)
         return eq

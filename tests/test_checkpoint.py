@@ -87,9 +87,9 @@ def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translat
 
 
 def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
-    """Warm starts (solver.warm_start) keep equilibria between steps; every checkpoint empties them, so a
-    run stopped at a checkpoint and resumed solves exactly as the one not stopped: the same parameters,
-    bit for bit.  The final evaluation solves from rest (its metric is the cold solves')."""
+    """Warm starts (solver.warm_start, every warm solve audited) keep equilibria between steps; every
+    checkpoint starts them afresh, so a run stopped at a checkpoint and resumed solves exactly as the one
+    not stopped: the same parameters, bit for bit.  The final evaluation solves from rest."""
     import jax
     import numpy as np
 
@@ -98,7 +98,7 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
 
     args = ["task=translation", "logger=none", "fidelity=fast", "trainer.batch_size=2", "trainer.progress=false",
             "trainer.animation_frames=0", "task.eval_grid=2", "trainer.eval_every=100",
-            "trainer.checkpoint_every=2", "solver.warm_start=true", "solver.warm_audit=0"]
+            "trainer.checkpoint_every=2", "solver.warm_start=true", "solver.warm_audit=1"]
 
     def trainer(run, steps, *more):
         return make_trainer(validate(compose_cfg(*args, f"trainer.steps={steps}", *more)), run)
@@ -107,7 +107,9 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     record = whole.fit().record
     stats = record["warm_starts"]
     assert stats["warm_solves"] >= 2 and stats["warm_converged"] == stats["warm_solves"]
-    assert stats["cold_solves"] >= 4 + 4  # the first step's two, every one after a checkpoint, the final evaluation's 4
+    assert stats["audits"] == stats["warm_solves"]
+    # the first step's two, every one after a checkpoint, the audits' and the final evaluation's 4
+    assert stats["cold_solves"] >= 4 + stats["audits"] + 4
     trainer(tmp_path / "stopped", 2).fit()
     resumed = trainer(tmp_path / "stopped", 4, "trainer.resume=true")
     resumed.fit()

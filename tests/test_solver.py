@@ -197,9 +197,10 @@ def _warm_and_cold(disc, **options):
 
 
 def test_a_warm_start_reaches_the_cold_equilibrium_in_fewer_iterations():
-    """A solve started from a nearby actuation's equilibrium (and one of a slightly different design:
-    its first corrector, at load factor 0, brings the start to this design) lands on the equilibrium the
-    solve from rest finds, in fewer iterations; the same actuation again costs two linearisations."""
+    """A solve started from a nearby actuation's equilibrium (and from one of a slightly different design:
+    the first predictor's right-hand side carries the start's residual at this design) lands on the
+    equilibrium the solve from rest finds, in fewer iterations; the same actuation again costs two
+    linearisations.  sim.solve solves from rest."""
     warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)))
     mat = material(0.07, 0.3)
     params = warm.init_params()
@@ -217,13 +218,15 @@ def test_a_warm_start_reaches_the_cold_equilibrium_in_fewer_iterations():
     again = warm.equilibrium_batch(X, jnp.array([[1.5, 1.0]]), mat)
     assert int(again.info.iterations[0]) <= 2
     np.testing.assert_allclose(again.u, first.u, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(first.u))))
+    assert warm.solve(params, jnp.array([1.5, 1.0]), mat).info.iterations == cold.solve(
+        params, jnp.array([1.5, 1.0]), mat).info.iterations
 
 
 def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it():
     """The kept equilibrium nearest in actuation is taken, none where rest is nearer; every
     warm_audit-th warm solve is also solved cold; once more than a tenth of at least eight audits found
-    another equilibrium, warm starts stop for good (and say why)."""
-    from nma.solver.implicit import WarmStarts
+    another equilibrium, warm starts stop (and say why) until clear() starts afresh."""
+    from nma.solver.implicit import Audit, WarmStarts
 
     kept = WarmStarts(size=2, audit_every=2)
     for k, d in enumerate(([1.0, 0.0], [0.0, 1.0], [3.0, 3.0])):
@@ -233,13 +236,20 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
     assert near.u_D[0] == 2.0 and not near.audit
     assert kept.start(np.array([0.1, 1.2])).audit  # the second warm start
     for _ in range(9):
-        assert kept.audited(1e-12)
-    assert not kept.audited(0.3) and not kept.stopped  # 1 of 10
-    assert not kept.audited(0.3) and kept.stopped.startswith("2 of 11 audited")
+        kept.audited(Audit(1e-12))
+    kept.audited(Audit(0.3, 1.0, 1.1))
+    assert not kept.stopped  # 1 of 10
+    kept.audited(Audit(0.3, 1.2, 1.1))
+    assert kept.stopped.startswith("2 of 11 audited") and kept.stats["stops"] == 1
     assert kept.start(np.array([2.5, 2.5])) is None and kept.stats["audits_same"] == 9
+    assert [o["energy_warm"] for o in kept.other_equilibria] == [1.0, 1.2]
     with kept.paused():
         assert kept.start(np.array([2.5, 2.5])) is None
     assert not kept.enabled
+    kept.clear()  # afresh: on again, nothing kept, the audits counted anew (the totals stay)
+    assert kept.enabled and not kept.stopped and kept.start(np.array([2.5, 2.5])) is None
+    kept.keep(np.array([3.0, 3.0]), np.array([2.0]), np.zeros(3))
+    assert kept.start(np.array([2.5, 2.5])) is not None and kept.stats["audits"] == 11
 
     warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)), warm_audit=1)
     mat = material(0.07, 0.3)

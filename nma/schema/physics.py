@@ -6,7 +6,7 @@ from typing import ClassVar, Optional
 
 from ..geometry.options import Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
-from ..solver.options import NewtonOptions
+from ..solver.options import WARM_START_NEEDS_HOST, NewtonOptions
 from ..settings import Schema, bounded, choice
 
 
@@ -92,7 +92,7 @@ class SolverConfig(Schema):
     escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
         "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
     warm_start: bool = field(default=_NEWTON.warm_start, metadata={
-        "doc": "start a solve from the kept equilibrium nearest in actuation (host backends; docs/performance.md)"})
+        "doc": "start a solve from the kept equilibrium nearest in actuation (host backends; docs/speed.md)"})
     warm_pool: int = bounded(_NEWTON.warm_pool, "[1, 100000]", doc="equilibria kept as warm starts")
     warm_iters: int = bounded(_NEWTON.warm_iters, "[1, 100000]",
                               doc="iterations a warm solve may take before it is redone cold")
@@ -103,8 +103,7 @@ class SolverConfig(Schema):
 
     def check(self):
         if self.warm_start and self.linear == "dense":  # the one traceable backend (nma.solver.linear)
-            self.fail("warm_start", "needs a host linear solver (pardiso, superlu): solver.linear=dense solves a "
-                                    "batch in lockstep from rest")
+            self.fail("warm_start", WARM_START_NEEDS_HOST)
 
     def newton(self) -> NewtonOptions:
         """Newton's own settings, handed to the solver."""

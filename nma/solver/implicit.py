@@ -62,29 +62,30 @@ class Start(NamedTuple):
 class WarmStarts:
     """The equilibria kept as starting points of later solves: the last `size` converged ones, each
     with its actuation.  A solve starts from the one nearest in actuation, where that is nearer than
-    rest.  The order of what is kept and taken does not depend on threads (a batch takes its starts
-    before it runs and keeps its results after, in sample order), and `clear()` empties it: the trainer
-    does at every checkpoint, so that a run resumed there solves exactly as one not interrupted.
+    rest.  Nothing here depends on threads: a batch takes its starts before it runs, and keeps its
+    results and records its audits after, in sample order.
 
     A structure with several equilibria under one actuation (a near-mechanism, a buckled wall) can
     reach another from a warm start than from rest.  Every `audit_every`-th warm solve is therefore
     also solved cold; where the two differ the cold answer is taken, and once more than `max_other`
-    of at least MIN_AUDITS audits differed, warm starts stop for good (`stopped` says why).  `stats`
-    counts all of it."""
+    of at least MIN_AUDITS audits differed, warm starts stop (`stopped` says why).  `clear()` starts
+    afresh: nothing kept, warm starts on, the audits counted anew.  The trainer clears at every
+    checkpoint, so that a run resumed there solves exactly as one not interrupted.  `stats` and
+    `other_equilibria` count everything since the simulator was built (they decide nothing)."""
 
     def __init__(self, size: int, audit_every: int, max_other: float = MAX_OTHER_EQUILIBRIA):
         self.size, self.audit_every, self.max_other = size, audit_every, max_other
-        self.enabled, self.stopped = True, ""
-        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free)
-        self._taken = 0
-        self._lock = threading.Lock()
         self.other_equilibria: list[dict] = []
         self.stats = {"warm_solves": 0, "warm_converged": 0, "warm_iterations": 0, "cold_solves": 0,
                       "cold_iterations": 0, "audits": 0, "audits_same": 0, "audits_within_1e-8": 0,
-                      "audit_largest_difference": 0.0}
+                      "audit_largest_difference": 0.0, "stops": 0}
+        self._lock = threading.Lock()
+        self.clear()
 
     def clear(self) -> None:
-        self._kept.clear()
+        self.enabled, self.stopped = True, ""
+        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free)
+        self._taken = self._audits = self._other = 0
 
     def start(self, d: np.ndarray) -> Start | None:
         """The start of a solve at actuation d: the kept equilibrium nearest to it, None where nothing
@@ -107,37 +108,45 @@ class WarmStarts:
     def record(self, **counts) -> None:
         with self._lock:  # a batch's samples report from several threads
             for k, v in counts.items():
-                self.stats[k] = max(self.stats[k], v) if k == "audit_largest_difference" else self.stats[k] + v
+                self.stats[k] += v
 
-    def audited(self, difference: float, energies=None) -> bool:
-        """Record an audit (the warm and cold displacements' relative difference, and where they differ
-        the two equilibria's energies, warm and cold); whether the warm answer stands."""
-        same = difference <= SAME_EQUILIBRIUM
-        with self._lock:
-            if not same and len(self.other_equilibria) < KEPT_OTHER_EQUILIBRIA:
-                self.other_equilibria.append({"difference": difference, **(
-                    {"energy_warm": energies[0], "energy_cold": energies[1]} if energies else {})})
-            st = self.stats
-            st["audits"] += 1
-            st["audits_same"] += int(same)
-            st["audits_within_1e-8"] += int(difference <= 1e-8)
-            st["audit_largest_difference"] = max(st["audit_largest_difference"], difference)
-            other = st["audits"] - st["audits_same"]
-            if self.enabled and st["audits"] >= MIN_AUDITS and other > self.max_other * st["audits"]:
-                self.enabled = False
-                self.stopped = (f"{other} of {st['audits']} audited warm solves reached another equilibrium than "
-                                f"the cold solve: this design has several under one actuation")
-                self._kept.clear()
-        return same
+    def audited(self, audit: "Audit") -> None:
+        """Record an audit, and stop warm starts where too many found another equilibrium."""
+        st, same = self.stats, audit.same
+        st["audits"] += 1
+        st["audits_same"] += int(same)
+        st["audits_within_1e-8"] += int(audit.difference <= 1e-8)
+        st["audit_largest_difference"] = max(st["audit_largest_difference"], audit.difference)
+        if not same and len(self.other_equilibria) < KEPT_OTHER_EQUILIBRIA:
+            self.other_equilibria.append(audit._asdict())
+        self._audits += 1
+        self._other += int(not same)
+        if self.enabled and self._audits >= MIN_AUDITS and self._other > self.max_other * self._audits:
+            self.enabled, self._kept = False, []
+            st["stops"] += 1
+            self.stopped = (f"{self._other} of {self._audits} audited warm solves reached another equilibrium "
+                            f"than the cold solve: this design has several under one actuation")
 
     @contextmanager
     def paused(self):
-        """Cold solves only (a run's final evaluation: its metric is the cold solves')."""
+        """Cold solves only (a run's final evaluation, whose metric is the cold solves', and sim.solve)."""
         enabled, self.enabled = self.enabled, False
         try:
             yield
         finally:
             self.enabled = enabled and not self.stopped
+
+
+class Audit(NamedTuple):
+    """A warm solve also solved cold: the displacements' relative difference (max norm, relative to the
+    cold one's largest), and where they differ, the two equilibria's energies."""
+    difference: float
+    energy_warm: float | None = None
+    energy_cold: float | None = None
+
+    @property
+    def same(self) -> bool:
+        return self.difference <= SAME_EQUILIBRIUM
 
 
 def available_cores() -> int:
@@ -193,39 +202,37 @@ class HostNewton:
 
     # -- one sample
     def solve(self, X, d, mat, ws, start: Start | None = None):
-        """One sample's equilibrium: from `start` (WarmStarts) where given and it converges within
-        warm_iters iterations, else cold.  An audited warm solve is also solved cold, and the cold
-        answer taken where they differ."""
+        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts) where
+        given and it converges within warm_iters iterations, else from rest.  An audited warm solve is
+        also solved from rest, and the cold answer taken where they differ."""
         if start is not None:
-            u, info = self._solve_escaping(X, d, mat, ws, (start.u_free, start.u_D), self.opts.warm_iters)
+            escape = self.opts.escape_saddles and self.backend.reports_inertia
+            u, info = self._solve(X, d, mat, ws, escape, (start.u_free, start.u_D), self.opts.warm_iters)
             converged = int(info.status) == CONVERGED
             self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
             if converged and not start.audit:
-                return u, info
+                return u, info, None
             if converged:
                 cold, cold_info = self._cold(X, d, mat, ws)
                 if int(cold_info.status) != CONVERGED:
-                    return u, info
+                    return u, info, None
                 u, cold = np.asarray(u), np.asarray(cold)
-                difference = float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300))
-                energies = None if difference <= SAME_EQUILIBRIUM else tuple(
-                    float(self._energy(X, d, mat, v)) for v in (u, cold))
-                same = self.warm.audited(difference, energies)
-                return (u, info) if same else (cold, cold_info)
-        return self._cold(X, d, mat, ws)
+                audit = Audit(float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300)))
+                if not audit.same:
+                    audit = audit._replace(**dict(zip(("energy_warm", "energy_cold"), (
+                        float(self._energy(X, d, mat, v)) for v in (u, cold)))))
+                return ((u, info) if audit.same else (cold, cold_info)) + (audit,)
+        return (*self._cold(X, d, mat, ws), None)
 
     def _cold(self, X, d, mat, ws):
-        u, info = self._solve_escaping(X, d, mat, ws, None, None)
+        if not (self.opts.escape_saddles and self.backend.reports_inertia):
+            u, info = self._solve(X, d, mat, ws, False)
+        else:
+            u, info = self._solve(X, d, mat, ws, True)
+            if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
+                u, info = self._solve(X, d, mat, ws, False)
         if self.warm is not None:
             self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
-        return u, info
-
-    def _solve_escaping(self, X, d, mat, ws, start, budget):
-        if not (self.opts.escape_saddles and self.backend.reports_inertia):
-            return self._solve(X, d, mat, ws, False, start, budget)
-        u, info = self._solve(X, d, mat, ws, True, start, budget)
-        if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
-            u, info = self._solve(X, d, mat, ws, False, start, budget)
         return u, info
 
     def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None):
@@ -323,12 +330,14 @@ class HostNewton:
         lead = np.shape(d)[:-1]
         Xs, ds, mats = (_samples(a, lead) for a in (X, d, mat))
 
-        # the starts are taken before the batch runs and its results kept after, in sample order
+        # the starts are taken before the batch runs, its results kept and its audits recorded after, in
+        # sample order: what warm starts do does not depend on the threads
         starts = [self.warm.start(d) if self.warm else None for d in ds]
+        audits = [None] * len(ds)
 
         def one(i):
             ws = self.backend.workspace()
-            u, info = self.solve(Xs[i], ds[i], mats[i], ws, starts[i])
+            u, info, audits[i] = self.solve(Xs[i], ds[i], mats[i], ws, starts[i])
             token = 0
             if keep:
                 token = next(self._tokens)
@@ -342,7 +351,9 @@ class HostNewton:
 
         solved = self._map(one, range(len(ds)))
         if self.warm is not None:
-            for d, (u, info, _) in zip(ds, solved):
+            for d, (u, info, _), audit in zip(ds, solved, audits):
+                if audit is not None:
+                    self.warm.audited(audit)
                 if int(info.status) == CONVERGED:
                     self.warm.keep(d, self._A @ d, u)
         return _stack(solved, lead)

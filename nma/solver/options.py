@@ -10,6 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
+WARM_START_NEEDS_HOST = ("needs a host linear solver (pardiso, superlu): solver.linear=dense solves a batch in "
+                         "lockstep from rest")
+
+
 @dataclass(frozen=True)
 class NewtonOptions:
     rtol: float = 1e-10             # residual tolerance relative to the full-load force scale

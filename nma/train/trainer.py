@@ -177,8 +177,8 @@ class Trainer:
                           f"step {step}: no sample of the batch converged; ")
         warm = self.sim.warm_starts
         if warm is not None and warm.stopped and not self._warm_stop_said:
-            log.warning("step %d: warm starts stopped: %s; the rest of the run solves from rest", step + 1,
-                        warm.stopped)
+            log.warning("step %d: warm starts stopped: %s; solves start from rest until the next checkpoint",
+                        step + 1, warm.stopped)
             self._warm_stop_said = True
         mean_grads = unravel(jnp.asarray(total[:-3] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
@@ -241,7 +241,7 @@ class Trainer:
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
         warm = self.sim.warm_starts
         if warm is not None:  # how the run's solves started, and whether warm starts held
-            record["warm_starts"] = {**warm.stats, "stopped": warm.stopped, "other_equilibria": warm.other_equilibria}
+            record["warm_starts"] = {**warm.stats, "other_equilibria": warm.other_equilibria}
         return Evaluation(record, X, d, u, out, ts, ok, states)
 
     # -- the loop ---------------------------------------------------------------------------------------
@@ -265,8 +265,9 @@ class Trainer:
         return {**self.state, "history": json.dumps(self.history), "config": json.dumps(self.fingerprint)}
 
     def save(self):
-        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: with none kept
+        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: afresh
             self.sim.warm_starts.clear()
+            self._warm_stop_said = False
         if self.world.is_root:
             checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload())
 
@@ -314,7 +315,7 @@ class Trainer:
             step = rec["step"]
             if step % self.cfg.eval_every == 0 or step == self.cfg.steps:
                 if self.world.is_root:
-                    ev = self._final_evaluation() if step == self.cfg.steps else self.evaluate(self.eval_subset())
+                    ev = self.final_evaluation() if step == self.cfg.steps else self.evaluate(self.eval_subset())
                     r = ev.record
                     rec[self.task.metric_name] = r[self.task.metric_name]
                     rec["invalid_states"] = r["invalid_states"]
@@ -340,16 +341,14 @@ class Trainer:
         if bar:
             bar.close()
         if self.world.is_root and last_eval is None:
-            last_eval = self._final_evaluation()
+            last_eval = self.final_evaluation()
         return last_eval
 
-    def _final_evaluation(self) -> Evaluation:
+    def final_evaluation(self) -> Evaluation:
         """The run's metric: every evaluation sample, each solved from rest (warm starts paused), so that
         it means what a cold solve of the design means, however training started its solves."""
         warm = self.sim.warm_starts
         if warm is None:
             return self.evaluate()
-        if warm.stopped:
-            log.warning("warm starts stopped during training: %s", warm.stopped)
         with warm.paused():
             return self.evaluate()
