@@ -218,10 +218,10 @@ class HostNewton:
                     return u, info, None
                 u, cold = np.asarray(u), np.asarray(cold)
                 audit = Audit(float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300)))
-                if not audit.same:
-                    audit = audit._replace(**dict(zip(("energy_warm", "energy_cold"), (
-                        float(self._energy(X, d, mat, v)) for v in (u, cold)))))
-                return ((u, info) if audit.same else (cold, cold_info)) + (audit,)
+                if audit.same:
+                    return u, info, audit
+                energy = lambda v: float(self._energy(X, d, mat, v))  # noqa: E731
+                return cold, cold_info, audit._replace(energy_warm=energy(u), energy_cold=energy(cold))
         return (*self._cold(X, d, mat, ws), None)
 
     def _cold(self, X, d, mat, ws):
