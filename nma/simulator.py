@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import contextlib
-
 from functools import partial
 from typing import Any, Mapping
 
