@@ -201,13 +201,15 @@ class HostNewton:
         return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
 
     # -- one sample
-    def solve(self, X, d, mat, ws, start: Start | None = None):
-        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts) where
-        given and it converges within warm_iters iterations, else from rest.  An audited warm solve is
-        also solved from rest, and the cold answer taken where they differ."""
+    def solve(self, X, d, mat, ws, start: Start | None = None, kel_rest=None):
+        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts; with
+        kel_rest, this design's element tangents at rest, which set the cold tolerance) where given and
+        it converges within warm_iters iterations, else from rest.  An audited warm solve is also solved
+        from rest, and the cold answer taken where they differ."""
         if start is not None:
             escape = self.opts.escape_saddles and self.backend.reports_inertia
-            u, info = self._solve(X, d, mat, ws, escape, (start.u_free, start.u_D), self.opts.warm_iters)
+            warm = (start.u_free, start.u_D, kel_rest)
+            u, info = self._solve(X, d, mat, ws, escape, warm, self.opts.warm_iters)
             converged = int(info.status) == CONVERGED
             self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
             if converged and not start.audit:
@@ -334,10 +336,17 @@ class HostNewton:
         # sample order: what warm starts do does not depend on the threads
         starts = [self.warm.start(d) if self.warm else None for d in ds]
         audits = [None] * len(ds)
+        # a warm solve's tolerance comes from its design's tangents at rest: once per design of the batch
+        designs = [(Xs[i].tobytes(), mats[i].tobytes()) if starts[i] else None for i in range(len(ds))]
+        rest = {}
+        for i, key in enumerate(designs):
+            if key is not None and key not in rest:
+                rest[key] = self._tangents(Xs[i], np.zeros_like(ds[i]), mats[i], np.zeros(len(self.eqs.free)))
+        kel_rest = [rest.get(key) for key in designs]
 
         def one(i):
             ws = self.backend.workspace()
-            u, info, audits[i] = self.solve(Xs[i], ds[i], mats[i], ws, starts[i])
+            u, info, audits[i] = self.solve(Xs[i], ds[i], mats[i], ws, starts[i], kel_rest[i])
             token = 0
             if keep:
                 token = next(self._tokens)
@@ -380,8 +389,8 @@ def _start(eqs, opts, X, d, mat):
     return p, s, linearise(eqs, opts, p, s)
 
 
-def _start_warm(eqs, opts, X, d, mat, u0, u_D0):
-    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0))
+def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest):
+    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest))
     return p, s, linearise(eqs, opts, p, s)
 
 

@@ -182,8 +182,9 @@ class Linearised(NamedTuple):
 
 def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, _State]:
     """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input).  Cold
-    (start None): at rest.  Warm (start = (u_free0, u_D0): another sample's equilibrium, under the full
-    dead load): the load walks from u_D0 to this sample's u_D.  Either way the first iteration is a
+    (start None): at rest.  Warm (start = (u_free0, u_D0, kel_rest): another sample's equilibrium, under
+    the full dead load, and this design's element tangents at rest): the load walks from u_D0 to this
+    sample's u_D.  Either way the first iteration is a
     predictor, whose right-hand side -(g + K_fD (u_D - u_D0)) also carries the start's own residual g
     where the design moved since: the first-order response to the change of design and actuation
     together.  The tolerance is the cold solve's either way (the force scale of the full load, from
@@ -198,11 +199,10 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
         p = Problem(quad, u_D, mat, size, jnp.zeros_like(u_D), scalar(0.0))
         u0, tol, k_ref = zero, scalar(0.0), scalar(1.0)
     else:
-        u0, u_D0 = start
+        u0, u_D0, kel_rest = start
         finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0))
         p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
-        _, _, kel = eqs.linearise(quad, zero, jnp.zeros_like(u_D), 0.0, mat)
-        tol, k_ref = _scales(eqs, opts, p, kel)
+        tol, k_ref = _scales(eqs, opts, p, kel_rest)
     init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   jnp.where(finite, RUNNING, NONFINITE_INPUT), tol, k_ref, scalar(jnp.inf),
