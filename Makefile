@@ -1,6 +1,6 @@
 PYTHON ?= python3
 
-.PHONY: help install test test-all bench bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -16,6 +16,9 @@ test-all:           ## every test, the slow physics checks included
 
 bench:              ## solver speed per scene at the paper discretisation, linear backends -> outputs/bench/solver.json
 	$(PYTHON) experiments/bench_solver.py
+
+bench-kernels:      ## one Newton linearisation per scene, elements in cache-sized chunks vs all at once -> outputs/bench/kernels.json
+	$(PYTHON) experiments/bench_kernels.py --repeats 7
 
 bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
 	$(PYTHON) experiments/bench_train.py

@@ -163,25 +163,46 @@ def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
     return jnp.sum(area * 0.5 * kappa * log ** 2), fe, Ke
 
 
+# Each element's terms pass through per-Gauss-point intermediates (w G^T C alone is 14 KB per element
+# at 5 x 5 Gauss points): over a whole scene of 1,000+ elements they outgrow the cache and the kernel
+# turns memory-bound, 2-3.5x slower on a 32 MiB L3.  On a CPU the elements therefore go through in
+# chunks that stay in cache (the same arithmetic, to round-off); a GPU takes them all at once.
+# `make bench-kernels` measures both.
+ELEMENT_CHUNK: int | None = 128  # elements per chunk on a CPU; None: all at once
+
+
+def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
+    """Integral of W (Gauss points only), element forces (P, S2, 9, 2) and element tangents
+    (P, S2, 9, 2, 9, 2) from the element displacements ue (P, S2, 9, 2)."""
+    def terms(ue, G, w):  # any leading element dimensions
+        F = jnp.eye(2) + jnp.einsum("...ai,...qaj->...qij", ue, G)
+        W = jnp.vectorize(lambda f: neo_hookean(f, mu, kappa), signature="(2,2)->()")(F)
+        wG = w[..., None, None] * G
+        fe = jnp.einsum("...qij,...qaj->...ai", piola(F, mu, kappa), wG)
+        H = jnp.einsum("...qaj,...qijkl->...qaikl", wG, tangent(F, mu, kappa))
+        return jnp.sum(w * W, axis=-1), fe, jnp.einsum("...qaikl,...qbl->...aibk", H, G)
+
+    if ELEMENT_CHUNK is None or jax.default_backend() != "cpu":
+        energy, fe, Ke = terms(ue, quad.grads, quad.weights)
+    else:
+        lead = ue.shape[:2]
+        flat = lambda a: a.reshape((-1,) + a.shape[2:])  # noqa: E731
+        energy, fe, Ke = jax.lax.map(lambda x: terms(*x), (flat(ue), flat(quad.grads), flat(quad.weights)),
+                                     batch_size=ELEMENT_CHUNK)
+        fe, Ke = fe.reshape(lead + fe.shape[1:]), Ke.reshape(lead + Ke.shape[1:])
+    return jnp.sum(energy), fe, Ke
+
+
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
     """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass,
     followed by the contact blocks (Ec, 18, 18) where the scene has contact (disc.block_points lists the
     points of each); tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
-    F = deformation_gradient(disc, quad, u)
     mu, kappa = lame(mat)
     mixed = disc.formulation == "mixed"
-    k_point = 0.0 if mixed else kappa  # the volumetric term at the Gauss points, or per element below
-    flat = F.reshape(-1, 2, 2)
-    W = jax.vmap(neo_hookean, in_axes=(0, None, None))(flat, mu, k_point).reshape(quad.weights.shape)
-    Pk = piola(F, mu, k_point)
-    C = tangent(F, mu, k_point)
-    wG = quad.weights[..., None, None] * quad.grads                    # (P, S2, Q, 9, 2)
-    fe = jnp.einsum("psqij,psqaj->psai", Pk, wG)
-    H = jnp.einsum("psqaj,psqijkl->psqaikl", wG, C)
-    Ke = jnp.einsum("psqaikl,psqbl->psaibk", H, quad.grads)
-    energy = jnp.sum(quad.weights * W)
+    # the volumetric term at the Gauss points, or per element below
+    energy, fe, Ke = _element_terms(quad, u[disc.elem_points], mu, 0.0 if mixed else kappa)
     if mixed:
-        ev, fv, Kv = _volumetric_terms(quad, F, kappa)
+        ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(disc, quad, u), kappa)
         energy, fe, Ke = energy + ev, fe + fv, Ke + Kv
     if disc.fidelity.inversion_barrier > 0:
         eb, fb, Kb = _barrier_terms(disc, quad, u, kappa)
