@@ -165,7 +165,7 @@ def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
 
 # Each element's terms pass through per-Gauss-point intermediates (w G^T C alone is 14 KB per element
 # at 5 x 5 Gauss points): over a whole scene of 1,000+ elements they outgrow the cache and the kernel
-# turns memory-bound, 2-3.5x slower on a 32 MiB L3.  On a CPU the elements therefore go through in
+# turns memory-bound (up to 3.8x slower here, 32 MiB of L3).  On a CPU the elements therefore go through in
 # chunks that stay in cache (the same arithmetic, to round-off); a GPU takes them all at once.
 # `make bench-kernels` measures both.
 ELEMENT_CHUNK: int | None = 128  # elements per chunk on a CPU; None: all at once
