@@ -182,15 +182,23 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
         H = jnp.einsum("...qaj,...qijkl->...qaikl", wG, tangent(F, mu, kappa))
         return jnp.sum(w * W, axis=-1), fe, jnp.einsum("...qaikl,...qbl->...aibk", H, G)
 
-    if ELEMENT_CHUNK is None or jax.default_backend() != "cpu":
+    lead = ue.shape[:2]
+    n = lead[0] * lead[1]
+    if ELEMENT_CHUNK is None or n <= ELEMENT_CHUNK or jax.default_backend() != "cpu":
         energy, fe, Ke = terms(ue, quad.grads, quad.weights)
-    else:
-        lead = ue.shape[:2]
-        flat = lambda a: a.reshape((-1,) + a.shape[2:])  # noqa: E731
-        energy, fe, Ke = jax.lax.map(lambda x: terms(*x), (flat(ue), flat(quad.grads), flat(quad.weights)),
-                                     batch_size=ELEMENT_CHUNK)
-        fe, Ke = fe.reshape(lead + fe.shape[1:]), Ke.reshape(lead + Ke.shape[1:])
-    return jnp.sum(energy), fe, Ke
+        return jnp.sum(energy), fe, Ke
+    # padded to whole chunks with elements of zero weight and zero gradients (F = I: zero terms), so
+    # that one compiled chunk does all
+    chunks = -(-n // ELEMENT_CHUNK)
+
+    def split(a):
+        a = a.reshape((n,) + a.shape[2:])
+        a = jnp.pad(a, [(0, chunks * ELEMENT_CHUNK - n)] + [(0, 0)] * (a.ndim - 1))
+        return a.reshape((chunks, ELEMENT_CHUNK) + a.shape[1:])
+
+    energy, fe, Ke = jax.lax.map(lambda x: terms(*x), (split(ue), split(quad.grads), split(quad.weights)))
+    unsplit = lambda a: a.reshape((-1,) + a.shape[2:])[:n].reshape(lead + a.shape[2:])  # noqa: E731
+    return jnp.sum(energy), unsplit(fe), unsplit(Ke)
 
 
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
