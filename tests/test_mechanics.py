@@ -50,6 +50,26 @@ def test_tangent_is_the_derivative_of_the_force(translation):
     np.testing.assert_allclose(Kv, jvp.reshape(-1), rtol=1e-10, atol=1e-12)
 
 
+def test_elements_in_chunks_give_the_terms_of_all_at_once(translation, monkeypatch):
+    """The cache-sized chunks (padded to whole ones) change only the order of the arithmetic."""
+    from nma.mechanics import energy
+
+    sim, X = translation
+    quad = quadrature(sim.disc, X)
+    u = 0.01 * jax.random.normal(jax.random.PRNGKey(2), X.shape)
+    mat = material(0.07, 0.4)
+    n = np.prod(sim.disc.elem_points.shape[:2])
+    monkeypatch.setattr(energy, "ELEMENT_CHUNK", 100)
+    assert n % 100, "the last chunk should be padded"
+    results = []
+    for above in (0, np.inf):  # every scene in chunks; none
+        monkeypatch.setattr(energy, "CHUNK_ABOVE", above)
+        results.append(jax.jit(lambda u: energy.energy_force_tangents(sim.disc, quad, u, mat))(u))
+    for chunked, whole in zip(*results):
+        assert np.all(np.isfinite(whole))
+        np.testing.assert_allclose(chunked, whole, rtol=1e-13, atol=1e-15 * float(jnp.max(jnp.abs(whole))))
+
+
 def test_material_derivatives_match_finite_differences():
     rng = np.random.default_rng(3)
     F = np.eye(2) + 0.2 * rng.normal(size=(2, 2))

@@ -167,8 +167,10 @@ def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
 # at 5 x 5 Gauss points): over a whole scene of 1,000+ elements they outgrow the cache and the kernel
 # turns memory-bound (up to 3.8x slower here, 32 MiB of L3).  On a CPU the elements therefore go through in
 # chunks that stay in cache (the same arithmetic, to round-off); a GPU takes them all at once.
-# `make bench-kernels` measures both.
+# `make bench-kernels` measures both.  Below CHUNK_ABOVE of w G^T C (576 bytes a Gauss point: the
+# reproductions' coarse fidelities, small scenes) chunks gain nothing measurable and only cost compile time.
 ELEMENT_CHUNK: int | None = 128  # elements per chunk on a CPU; None: all at once
+CHUNK_ABOVE = 8 * 2 ** 20        # bytes
 
 
 def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
@@ -184,7 +186,8 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
 
     lead = ue.shape[:2]
     n = lead[0] * lead[1]
-    if ELEMENT_CHUNK is None or n <= ELEMENT_CHUNK or jax.default_backend() != "cpu":
+    size = n * quad.weights.shape[-1] * 576
+    if ELEMENT_CHUNK is None or size <= CHUNK_ABOVE or jax.default_backend() != "cpu":
         energy, fe, Ke = terms(ue, quad.grads, quad.weights)
         return jnp.sum(energy), fe, Ke
     # padded to whole chunks with elements of zero weight and zero gradients (F = I: zero terms), so
