@@ -50,13 +50,15 @@ def measure(scene: str, repeats: int) -> dict:
     from nma.mechanics import energy
 
     variants = {}
-    for name, chunk in (("chunked", energy.ELEMENT_CHUNK), ("whole", None)):
-        default, energy.ELEMENT_CHUNK = energy.ELEMENT_CHUNK, chunk
-        try:  # traced and compiled now, with this chunk size
+    defaults = energy.ELEMENT_CHUNK, energy.CHUNK_ABOVE
+    # chunks whatever the scene's size (the default skips them below CHUNK_ABOVE), and none
+    for name, setting in (("chunked", (defaults[0], 0)), ("whole", (None, defaults[1]))):
+        energy.ELEMENT_CHUNK, energy.CHUNK_ABOVE = setting
+        try:  # traced and compiled now, with this setting
             fn, args, dofs, elements = linearisation(scene)
             jax.block_until_ready(fn(*args))
         finally:
-            energy.ELEMENT_CHUNK = default
+            energy.ELEMENT_CHUNK, energy.CHUNK_ABOVE = defaults
         variants[name] = (fn, args)
     chunked, whole = (jax.tree_util.tree_leaves(fn(*args)) for fn, args in variants.values())
     difference = max(float(np.max(np.abs(a - b)) / np.max(np.abs(b))) for a, b in zip(chunked, whole))
