@@ -11,6 +11,8 @@ Two drivers of the same Newton iteration (nma.solver.newton):
   batch's samples run concurrently on `workers` threads (XLA and the factorisations release the
   GIL).  Inside a traced program the host driver is one `pure_callback` per batch; each sample keeps
   its workspace (its last factor) until its adjoint, which then costs back-substitutions only.
+  A batch's cold solves of one design share their first iteration, the tangent at rest and its
+  factor (AtRest): it does not depend on the actuation.
   With solver.escape_saddles (PARDISO: its LDL^T factorisation reports inertia), each converged load
   step and the final state are checked for negative eigenvalues; a saddle is left along its most
   unstable mode and Newton goes on to a stable equilibrium (if leaving fails, the solve is redone
@@ -24,7 +26,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import partial
@@ -149,6 +151,35 @@ class Audit(NamedTuple):
         return self.difference <= SAME_EQUILIBRIUM
 
 
+class AtRest:
+    """A design's linearisation at rest, shared by a batch's solves of that design.  Every cold solve
+    begins by linearising at rest and factorising that tangent, which depend on the design only (not on
+    the actuation), so a batch does both once per design; a warm solve's tolerance comes from the same
+    tangent.  The factor is one solver handle, so its back-substitutions take turns."""
+
+    def __init__(self, backend, lin, factorise: bool):
+        self.parts = (lin.energy, lin.g, lin.kel)  # potential, free residual, element tangents
+        self.kel = lin.kel
+        self._backend, self._ws, self.inertia = backend, None, None
+        if factorise:
+            self._ws = backend.workspace()
+            self._ws.factorise(lin.kel, 0.0)  # a cold start's first iteration: no diagonal shift
+            self.inertia = backend.inertia(self._ws)
+        self._lock = threading.Lock()
+
+    @property
+    def factorised(self) -> bool:
+        return self._ws is not None
+
+    def solve(self, b) -> np.ndarray:
+        with self._lock:
+            return self._ws.solve(b)
+
+    def release(self) -> None:
+        if self._ws is not None:
+            self._backend.release(self._ws)
+
+
 def available_cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -184,6 +215,7 @@ class HostNewton:
         # one dispatch and one wait per iteration: each kernel ends with the next linearisation
         self._start = jax.jit(partial(_start, eqs, opts))
         self._start_warm = jax.jit(partial(_start_warm, eqs, opts))
+        self._start_at_rest = jax.jit(partial(_start_at_rest, eqs, opts))
         self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
         self._A = np.asarray(eqs.A)
         self._step = jax.jit(partial(_step, eqs, opts))
@@ -201,14 +233,14 @@ class HostNewton:
         return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
 
     # -- one sample
-    def solve(self, X, d, mat, ws, start: Start | None = None, kel_rest=None):
-        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts; with
-        kel_rest, this design's element tangents at rest, which set the cold tolerance) where given and
-        it converges within warm_iters iterations, else from rest.  An audited warm solve is also solved
-        from rest, and the cold answer taken where they differ."""
+    def solve(self, X, d, mat, ws, start: Start | None = None, rest: AtRest | None = None):
+        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts; rest, this
+        design's linearisation at rest, sets the cold tolerance) where given and it converges within
+        warm_iters iterations, else from rest (with `rest`'s factor where it has one).  An audited warm
+        solve is also solved from rest, and the cold answer taken where they differ."""
         if start is not None:
             escape = self.opts.escape_saddles and self.backend.reports_inertia
-            warm = (start.u_free, start.u_D, kel_rest)
+            warm = (start.u_free, start.u_D, rest.kel)
             u, info = self._solve(X, d, mat, ws, escape, warm, self.opts.warm_iters)
             converged = int(info.status) == CONVERGED
             self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
@@ -224,24 +256,31 @@ class HostNewton:
                     return u, info, audit
                 energy = lambda v: float(self._energy(X, d, mat, v))  # noqa: E731
                 return cold, cold_info, audit._replace(energy_warm=energy(u), energy_cold=energy(cold))
-        return (*self._cold(X, d, mat, ws), None)
+        return (*self._cold(X, d, mat, ws, rest), None)
 
-    def _cold(self, X, d, mat, ws):
+    def _cold(self, X, d, mat, ws, rest: AtRest | None = None):
+        rest = rest if rest is not None and rest.factorised else None  # else kept for a warm tolerance only
         if not (self.opts.escape_saddles and self.backend.reports_inertia):
-            u, info = self._solve(X, d, mat, ws, False)
+            u, info = self._solve(X, d, mat, ws, False, rest=rest)
         else:
-            u, info = self._solve(X, d, mat, ws, True)
+            u, info = self._solve(X, d, mat, ws, True, rest=rest)
             if int(info.status) != CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
-                u, info = self._solve(X, d, mat, ws, False)
+                u, info = self._solve(X, d, mat, ws, False, rest=rest)
         if self.warm is not None:
             self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
         return u, info
 
-    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None):
+    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None):
         kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
         checked = set()  # converged load steps whose stability was checked (each once)
         with kernels():
-            p, s, lin = self._start(X, d, mat) if start is None else self._start_warm(X, d, mat, *start)
+            if start is not None:
+                p, s, lin = self._start_warm(X, d, mat, *start)
+            elif rest is not None:
+                p, s, lin = self._start_at_rest(X, d, mat, rest.parts)
+            else:
+                p, s, lin = self._start(X, d, mat)
+        shared = rest if start is None else None  # the first iteration's factor, where a batch shares it
         while True:
             with kernels():
                 status, next_status, shift, predictor, steps, it = jax.device_get(
@@ -258,17 +297,20 @@ class HostNewton:
             if next_status != RUNNING and not check:
                 s = self._hold(lin)
                 break
-            ws.factorise(lin.kel, 0.0 if next_status != RUNNING else float(shift))
+            factor, shared = shared or ws, None
+            if factor is ws:
+                ws.factorise(lin.kel, 0.0 if next_status != RUNNING else float(shift))
             if check:
                 checked.add(int(steps))
-                left = self._leave_saddle(p, lin, ws) if self.backend.inertia(ws) else None
+                negative = factor.inertia if factor is not ws else self.backend.inertia(ws)
+                left = self._leave_saddle(p, lin, ws) if negative else None
                 if left is not None:
                     lin = left
                     continue
                 if next_status != RUNNING:
                     s = self._hold(lin)
                     break
-            du = ws.solve(lin.rhs)
+            du = factor.solve(lin.rhs)
             with kernels():
                 s, lin = self._step(p, lin, du)
         self.backend.count("newton_solves")
@@ -336,17 +378,11 @@ class HostNewton:
         # sample order: what warm starts do does not depend on the threads
         starts = [self.warm.start(d) if self.warm else None for d in ds]
         audits = [None] * len(ds)
-        # a warm solve's tolerance comes from its design's tangents at rest: once per design of the batch
-        designs = [(Xs[i].tobytes(), mats[i].tobytes()) if starts[i] else None for i in range(len(ds))]
-        rest = {}
-        for i, key in enumerate(designs):
-            if key is not None and key not in rest:
-                rest[key] = self._tangents(Xs[i], np.zeros_like(ds[i]), mats[i], np.zeros(len(self.eqs.free)))
-        kel_rest = [rest.get(key) for key in designs]
+        rests = self._at_rest(Xs, ds, mats, starts)
 
         def one(i):
             ws = self.backend.workspace()
-            u, info, audits[i] = self.solve(Xs[i], ds[i], mats[i], ws, starts[i], kel_rest[i])
+            u, info, audits[i] = self.solve(Xs[i], ds[i], mats[i], ws, starts[i], rests[i])
             token = 0
             if keep:
                 token = next(self._tokens)
@@ -358,7 +394,11 @@ class HostNewton:
                 self.backend.release(ws)
             return np.asarray(u), jax.tree_util.tree_map(np.asarray, info), np.int64(token)
 
-        solved = self._map(one, range(len(ds)))
+        try:
+            solved = self._map(one, range(len(ds)))
+        finally:
+            for rest in {id(r): r for r in rests if r is not None}.values():
+                rest.release()
         if self.warm is not None:
             for d, (u, info, _), audit in zip(ds, solved, audits):
                 if audit is not None:
@@ -366,6 +406,21 @@ class HostNewton:
                 if int(info.status) == CONVERGED:
                     self.warm.keep(d, self._A @ d, u)
         return _stack(solved, lead)
+
+    def _at_rest(self, Xs, ds, mats, starts) -> list[AtRest | None]:
+        """Each sample's design linearised at rest, once per design of the batch: where the design has a
+        warm solve (its tolerance), or two cold ones or more (factorised: their first iteration)."""
+        keys = [(Xs[i].tobytes(), mats[i].tobytes()) for i in range(len(ds))]
+        cold = Counter(k for k, start in zip(keys, starts) if start is None)
+        warm = {k for k, start in zip(keys, starts) if start is not None}
+        rests = {}
+        for i, k in enumerate(keys):
+            if k not in rests and (cold[k] > 1 or k in warm):
+                with self.backend.clock.time("newton_kernels"):
+                    lin = jax.block_until_ready(self._start(Xs[i], ds[i], mats[i])[2])
+                finite = np.all(np.isfinite(lin.kel))  # else every solve of it ends at once (NONFINITE_INPUT)
+                rests[k] = AtRest(self.backend, lin, factorise=cold[k] > 1 and finite)
+        return [rests.get(k) for k in keys]
 
     def _backward_batch(self, X, d, mat, u_free, u_bar, token):
         lead = np.shape(d)[:-1]
@@ -387,6 +442,11 @@ class HostNewton:
 def _start(eqs, opts, X, d, mat):
     p, s = setup(eqs, opts, X, d, mat)
     return p, s, linearise(eqs, opts, p, s)
+
+
+def _start_at_rest(eqs, opts, X, d, mat, at_rest):
+    p, s = setup(eqs, opts, X, d, mat)
+    return p, s, linearise(eqs, opts, p, s, at_rest)
 
 
 def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest):

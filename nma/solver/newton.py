@@ -218,10 +218,11 @@ def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
     return opts.rtol * f_ref + opts.atol * kdiag * p.size, kdiag
 
 
-def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State) -> Linearised:
-    """First half of an iteration: linearise at the state; a corrector that meets the tolerance closes
-    its load step (and the solve, at full load); the right-hand side of the next step."""
-    E0, g, kel = eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat)
+def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State, at=None) -> Linearised:
+    """First half of an iteration: linearise at the state (or take `at`, its potential, free residual and
+    element tangents, already computed); a corrector that meets the tolerance closes its load step (and
+    the solve, at full load); the right-hand side of the next step."""
+    E0, g, kel = eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat) if at is None else at
     rnorm = jnp.linalg.norm(g)
     first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest: the scales come from this tangent
     tol, k_ref = jax.lax.cond(first, lambda _: _scales(eqs, opts, p, kel), lambda _: (s.tol, s.k_ref), None)
