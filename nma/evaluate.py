@@ -3,9 +3,10 @@
     python -m nma.evaluate run=outputs/runs/translation/<date>/<time> fidelity=fine
     python -m nma.evaluate run=... fidelity.ctrl_per_patch=11 fidelity.quad_points=4
 
-Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set at the
-run's own training fidelity and at the one asked for, with the same code, and writes both side by side
-into <run>/evaluate/<ctrl>x<quad>[_contact].json (and one JSON line on stdout): the metric, its per-sample
+Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set (or
+eval_subset=N samples of it, evenly spaced, for a set too large to solve finely) at the run's own training
+fidelity and at the one asked for, with the same code, and writes both side by side into
+<run>/evaluate/<ctrl>x<quad>[_contact][_<N>_samples].json (and one JSON line on stdout): the metric, its per-sample
 values, failed solves, how many states are not physical objects (nma/geometry/validity.py), the change,
 and the DOFs of each discretisation.  A design that only works in
 the coarse model shows here as a metric that grows under refinement.
@@ -41,17 +42,19 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene))
 
 
-def evaluate_at(settings, run: Path, fidelity, solver, contact=None) -> dict:
-    """The run's checkpointed network and geometry evaluated on its task's evaluation set at `fidelity`
-    (with `contact` in place of the run's own where given)."""
+def evaluate_at(settings, run: Path, fidelity, solver, contact=None, eval_subset=None) -> dict:
+    """The run's checkpointed network and geometry evaluated on its task's evaluation set (or
+    `eval_subset` samples of it, evenly spaced) at `fidelity` (with `contact` in place of the run's own
+    where given)."""
     from .train.runs import fidelity_record, make_trainer
 
     s = dataclasses.replace(settings, fidelity=fidelity, solver=solver, contact=contact or settings.contact,
                             logger=dataclasses.replace(settings.logger, name="none"),
-                            trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false"))
+                            trainer=dataclasses.replace(settings.trainer, init_from=str(run), resume="false",
+                                                        eval_subset=eval_subset))
     trainer = make_trainer(s, run / "evaluate", exact_init=True)  # the run's own parameters, all of them
     t0 = time.perf_counter()
-    ev = trainer.final_evaluation().record  # every sample, from rest
+    ev = trainer.final_evaluation(trainer.eval_subset()).record  # from rest
     task = trainer.task
     return {"fidelity": fidelity_record(trainer.sim.disc, fidelity),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
@@ -64,18 +67,20 @@ def evaluate(s: EvaluateConfig) -> dict:
 
     run = Path(s.run)
     settings, _, checkpoint = load_run(run)
-    trained = evaluate_at(settings, run, settings.fidelity, s.solver)
-    refined = evaluate_at(settings, run, s.fidelity, s.solver, s.contact)
+    trained = evaluate_at(settings, run, settings.fidelity, s.solver, eval_subset=s.eval_subset)
+    refined = evaluate_at(settings, run, s.fidelity, s.solver, s.contact, s.eval_subset)
     a, b = np.asarray(trained["per_sample"]), np.asarray(refined["per_sample"])
     result = {"run": str(run), "checkpoint": str(checkpoint), "task": settings.task.name,
               "metric": trained["metric_name"], "unit": trained["unit"],
+              "samples": len(a), "eval_subset": s.eval_subset,
               "training_fidelity": trained, "evaluated_fidelity": refined,
               "change": refined["metric"] - trained["metric"],
               "relative_change": (refined["metric"] - trained["metric"]) / abs(trained["metric"])
               if trained["metric"] else None,
               "largest_sample_change": float(np.max(np.abs(b - a))) if len(a) == len(b) else None}
     at = refined["fidelity"]
-    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}{'_contact' if at['contact'] else ''}.json"
+    subset = f"_{len(a)}_samples" if s.eval_subset is not None else ""
+    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}{'_contact' if at['contact'] else ''}{subset}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     result["file"] = str(out)

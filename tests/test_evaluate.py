@@ -40,3 +40,23 @@ def test_evaluate_reproduces_the_run_and_refines_it(translation_run):
     assert result["change"] == pytest.approx(refined["metric"] - logged["value"], rel=1e-9)
     assert 0 < abs(result["change"]) < 0.1 * logged["value"]
     assert json.loads((translation_run / "evaluate" / "5x5.json").read_text())["change"] == result["change"]
+
+
+def test_evaluate_on_a_subset_reads_the_same_samples_of_the_run(translation_run):
+    """eval_subset=N evaluates N samples evenly spaced through the evaluation set (the trainer's
+    eval_subset), at both fidelities: at the training fidelity their values are the run's own for those
+    samples, and the file says how many.  Out of range: ConfigError naming the field."""
+    import numpy as np
+
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity
+
+    logged = json.loads((translation_run / "metrics.json").read_text())
+    result = evaluate(EvaluateConfig(run=str(translation_run), fidelity=Fidelity(5, 3), eval_subset=3))
+    idx = np.linspace(0, len(logged["per_sample"]) - 1, 3).round().astype(int)
+    assert result["samples"] == 3 and len(idx) == 3
+    np.testing.assert_allclose(result["training_fidelity"]["per_sample"], np.asarray(logged["per_sample"])[idx],
+                               rtol=1e-9)
+    assert json.loads((translation_run / "evaluate" / "5x3_3_samples.json").read_text())["samples"] == 3
+    with pytest.raises(ConfigError, match=r"eval_subset must be .* in \[1, 100000000\], got 0"):
+        EvaluateConfig(run=str(translation_run), eval_subset=0)

@@ -101,10 +101,13 @@ class ExportConfig(Schema):
 
 
 @dataclass
-class EvaluateConfig:
+class EvaluateConfig(Schema):
     """`python -m nma.evaluate run=<run dir> fidelity=<preset>`: a trained run re-evaluated at another
     discretisation (and solver), side by side with its training fidelity."""
     run: str = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
     solver: SolverConfig = field(default_factory=SolverConfig)
     contact: Optional[ContactConfig] = None  # contact=on|off: evaluate with or without it; null: as the run trained
+    eval_subset: Optional[int] = bounded(None, "[1, 100000000]", doc="this many samples of the task's evaluation "
+                                         "set, evenly spaced through it (as trainer.eval_subset picks them), at "
+                                         "both fidelities: for a set too large to solve finely; null: all of it")

@@ -344,11 +344,12 @@ class Trainer:
             last_eval = self.final_evaluation()
         return last_eval
 
-    def final_evaluation(self) -> Evaluation:
-        """The run's metric: every evaluation sample, each solved from rest (warm starts paused), so that
-        it means what a cold solve of the design means, however training started its solves."""
+    def final_evaluation(self, ts=None) -> Evaluation:
+        """The run's metric: every evaluation sample (or the descriptors `ts`), each solved from rest (warm
+        starts paused), so that it means what a cold solve of the design means, however training started
+        its solves."""
         warm = self.sim.warm_starts
         if warm is None:
-            return self.evaluate()
+            return self.evaluate(ts)
         with warm.paused():
-            return self.evaluate()
+            return self.evaluate(ts)
