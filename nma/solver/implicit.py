@@ -159,13 +159,16 @@ class AtRest:
 
     def __init__(self, backend, lin, factorise: bool):
         self.parts = (lin.energy, lin.g, lin.kel)  # potential, free residual, element tangents
-        self.kel = lin.kel
         self._backend, self._ws, self.inertia = backend, None, None
         if factorise:
             self._ws = backend.workspace()
             self._ws.factorise(lin.kel, 0.0)  # a cold start's first iteration: no diagonal shift
             self.inertia = backend.inertia(self._ws)
         self._lock = threading.Lock()
+
+    @property
+    def kel(self):
+        return self.parts[2]
 
     @property
     def factorised(self) -> bool:
@@ -247,7 +250,7 @@ class HostNewton:
             if converged and not start.audit:
                 return u, info, None
             if converged:
-                cold, cold_info = self._cold(X, d, mat, ws)
+                cold, cold_info = self._cold(X, d, mat, ws, rest)
                 if int(cold_info.status) != CONVERGED:
                     return u, info, None
                 u, cold = np.asarray(u), np.asarray(cold)
@@ -259,7 +262,6 @@ class HostNewton:
         return (*self._cold(X, d, mat, ws, rest), None)
 
     def _cold(self, X, d, mat, ws, rest: AtRest | None = None):
-        rest = rest if rest is not None and rest.factorised else None  # else kept for a warm tolerance only
         if not (self.opts.escape_saddles and self.backend.reports_inertia):
             u, info = self._solve(X, d, mat, ws, False, rest=rest)
         else:
@@ -280,7 +282,8 @@ class HostNewton:
                 p, s, lin = self._start_at_rest(X, d, mat, rest.parts)
             else:
                 p, s, lin = self._start(X, d, mat)
-        shared = rest if start is None else None  # the first iteration's factor, where a batch shares it
+        # the first iteration's factor, where the batch factorised it for this design
+        shared = rest if start is None and rest is not None and rest.factorised else None
         while True:
             with kernels():
                 status, next_status, shift, predictor, steps, it = jax.device_get(
@@ -408,8 +411,9 @@ class HostNewton:
         return _stack(solved, lead)
 
     def _at_rest(self, Xs, ds, mats, starts) -> list[AtRest | None]:
-        """Each sample's design linearised at rest, once per design of the batch: where the design has a
-        warm solve (its tolerance), or two cold ones or more (factorised: their first iteration)."""
+        """Each sample's design linearised at rest, once per design of the batch, where the design has a
+        warm solve (its tolerance) or two cold ones or more (then also factorised: their first iteration).
+        Every cold solve of such a design starts from it."""
         keys = [(Xs[i].tobytes(), mats[i].tobytes()) for i in range(len(ds))]
         cold = Counter(k for k, start in zip(keys, starts) if start is None)
         warm = {k for k, start in zip(keys, starts) if start is not None}
