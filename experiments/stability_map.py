@@ -75,7 +75,7 @@ def designs(sim, rng) -> dict[str, dict]:
 
 
 def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
-              formulation: str = "displacement", nus: list[float] = NUS) -> dict:
+              formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -87,7 +87,8 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
 
     rng = np.random.default_rng(seed)
     sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
-                                {"escape_saddles": escape_saddles}, {"enabled": contact}, formulation)
+                                {"escape_saddles": escape_saddles, **({"max_iters": max_iters} if max_iters is not None else {})},
+                                {"enabled": contact}, formulation)
     d_max = config.load("task", scene)["d_max"]
     solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
     nus = [nus[0], nus[-1]] if quick else nus
@@ -131,6 +132,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
             "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else ""),
+            "max_iters": sim.options.max_iters,
             "contact": contact, "formulation": formulation,
             "records": records}
 
@@ -227,6 +229,7 @@ def main():
     ap.add_argument("--formulation", default="displacement", choices=FORMULATIONS,
                     help="material.formulation (write to a separate --out to compare)")
     ap.add_argument("--nus", nargs="+", type=float, default=NUS, help="Poisson's ratios to map")
+    ap.add_argument("--max-iters", type=int, help="solver.max_iters, Newton's budget per solve (default: the solver's)")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -239,7 +242,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
         result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
-                           nus=args.nus)
+                           nus=args.nus, max_iters=args.max_iters)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "
