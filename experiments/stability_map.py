@@ -86,8 +86,10 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     from nma.solver.newton import CONVERGED, STATUS_TEXT
 
     rng = np.random.default_rng(seed)
-    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
-                                {"escape_saddles": escape_saddles, **({"max_iters": max_iters} if max_iters is not None else {})},
+    solver = {"escape_saddles": escape_saddles}
+    if max_iters is not None:  # else the solver's default budget
+        solver["max_iters"] = max_iters
+    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"), solver,
                                 {"enabled": contact}, formulation)
     d_max = config.load("task", scene)["d_max"]
     solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
