@@ -49,6 +49,9 @@ def test_multirun_sweeps_seeds_through_submitit_and_summarises(tmp_path):
 
 
 def test_slurm_launcher_preset_composes():
+    from nma.schema import register
+
+    register()  # the schemas in Hydra's ConfigStore, as every command does on import (not only other tests)
     with initialize_config_dir(config_dir=str(config.CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=["hydra/launcher=slurm", "hydra.launcher.partition=cpu"],
                       return_hydra_config=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nma import config
-from nma.geometry.discretise import discretise
+from nma.geometry.discretise import Resolution, discretise
 from nma.geometry.sampling import sample_colours, sample_positions
 from nma.schema import scene_from_config
 from nma.mechanics.material import material
@@ -128,3 +128,31 @@ def test_gradients_with_the_inversion_barrier_acting(barrier_simulator):
     sol = sim.solve(params, jnp.asarray(d), mat)
     assert StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(sol.u).min_J < 0.05  # the barrier is in its range here
     check_directional(sim, params, jnp.asarray(d), mat, jax.random.PRNGKey(0), ["radii", "actuation", "material"])
+
+
+def test_the_inversion_penalty_is_differentiable_through_the_equilibrium():
+    """trainer.inversion_penalty's term (nma.mechanics.energy.inversion_penalty) on conftest.barrier_case,
+    whose equilibrium at 5 x 2 without the barrier is inverted between Gauss points: the penalty acts, and
+    its gradient with respect to the radii and the actuation, carried by the adjoint through u and
+    directly through X, matches central differences."""
+    from conftest import barrier_case
+    from nma.mechanics.energy import inversion_penalty
+
+    radii, d = barrier_case()
+    disc = discretise(scene_from_config(config.load("scene", "translation")), Resolution(5, 2))
+    sim, mat = Simulator(disc, "pardiso", TIGHT), material(0.07, 0.3)
+
+    @jax.jit
+    def penalty(radii, d):
+        X = sim.reference_points({"radii": radii})
+        return inversion_penalty(sim.disc, X, sim.equilibrium(X, d, mat)[0], 0.2)
+
+    radii, d = jnp.asarray(radii), jnp.asarray(d)
+    assert float(penalty(radii, d)) > 0.04  # a check point inverted: (0.2 - det F)^2 > 0.04 there
+    g_radii, g_d = jax.grad(penalty, argnums=(0, 1))(radii, d)
+    h, keys = 1e-5, jax.random.split(jax.random.PRNGKey(3))
+    v, w = jax.random.normal(keys[0], radii.shape), jax.random.normal(keys[1], d.shape)
+    for exact, plus, minus in ((jnp.vdot(g_radii, v), (radii + h * v, d), (radii - h * v, d)),
+                               (jnp.vdot(g_d, w), (radii, d + h * w), (radii, d - h * w))):
+        fd = (penalty(*plus) - penalty(*minus)) / (2 * h)
+        np.testing.assert_allclose(float(exact), float(fd), rtol=1e-6)

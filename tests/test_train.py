@@ -123,6 +123,36 @@ def test_nonfinite_loss_skips_updates_then_stops(simulator, tmp_path):
     assert_same_params(trainer.state["params"], before, rtol=0)
 
 
+def test_the_inversion_penalty_adds_its_weighted_term_to_each_converged_samples_loss(simulator, tmp_path):
+    """trainer.inversion_penalty w: each converged sample's loss is the task's plus w times
+    nma.mechanics.energy.inversion_penalty of its state (margin 0.99, so that the term acts where a state
+    is compressed anywhere); with w = 0 the loss is the task's alone."""
+    import dataclasses
+
+    import jax
+    from nma.mechanics.energy import inversion_penalty
+    from nma.mechanics.material import material
+    from nma.models.mlp import mlp
+    from nma.schema import OptimConfig, TrainerConfig, TranslationTask
+    from nma.tasks.translation import translation
+    from nma.train.trainer import Trainer
+
+    sim = simulator("translation", quad_points=3)
+    task = translation(TranslationTask(eval_grid=1), sim)
+    cfg = TrainerConfig(steps=1, batch_size=3, progress=False, inversion_penalty=0.5, inversion_margin=0.99)
+    trainer = Trainer(task, sim, mlp([4], sim.n_actuations, task.d_max), material(0.07, 0.3), cfg, OptimConfig(),
+                      tmp_path)
+    params, ts = trainer.state["params"], task.sample(jax.random.PRNGKey(5), 3)
+    total, (ok, losses, _, _) = trainer._loss_sum(params, ts)
+    X, _, u, out, _ = trainer._forward(params, ts)
+    penalty = np.array([float(inversion_penalty(sim.disc, X, ui, 0.99)) for ui in u])
+    task_losses = np.asarray(jax.vmap(task.loss)(out, ts))
+    assert np.all(np.asarray(ok)) and np.any(penalty > 0)
+    np.testing.assert_allclose(np.asarray(losses), task_losses + 0.5 * penalty, rtol=1e-12)
+    trainer.cfg = dataclasses.replace(cfg, inversion_penalty=0.0)
+    np.testing.assert_allclose(np.asarray(trainer._loss_sum(params, ts)[1][1]), task_losses, rtol=1e-12)
+
+
 @pytest.mark.slow
 def test_digital_mnist_phases_chain(tmp_path):
     """Lookup table -> network fitted to it (no simulation) -> end-to-end fine-tuning, each phase

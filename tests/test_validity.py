@@ -107,3 +107,23 @@ def test_the_bernstein_bound_agrees_with_a_dense_grid(scene):
         assert v.undecided_elements == 0
         assert (v.inverted_elements > 0) == (dense <= 0) or (v.inverted_elements > 0 and dense > -1e-9)
         assert v.min_J >= dense - 1e-12
+
+
+def test_the_inversion_penalty_sees_det_f_where_the_check_does(scene):
+    """nma.mechanics.energy.check_point_dets (what trainer.inversion_penalty samples) gives det F at the
+    same 4 x 4 points of every element as the check's first look (before any subdivision): their
+    smallest values agree, on a state inverted in one element and on the rest state."""
+    import jax.numpy as jnp
+    from nma.mechanics.energy import check_point_dets, inversion_penalty
+
+    disc, X, checker = scene
+    patch = disc.patch_points[0].reshape(11, 11)
+    k = patch[4, 4]
+    u = np.zeros_like(X)
+    u[k] = 1.6 * (X[patch[5, 4]] - X[k])  # past its neighbour: inverted near it
+    J, defined = check_point_dets(disc, jnp.asarray(X), jnp.asarray(u))
+    v = checker.check(u)
+    assert v.inverted_elements > 0 and bool(jnp.all(defined))
+    assert float(jnp.min(J)) == pytest.approx(v.min_J, rel=1e-9)  # the smallest is at a check point here
+    assert float(inversion_penalty(disc, jnp.asarray(X), jnp.asarray(u), 0.2)) >= (0.2 - v.min_J) ** 2
+    assert float(inversion_penalty(disc, jnp.asarray(X), jnp.zeros_like(jnp.asarray(X)), 0.2)) == 0.0

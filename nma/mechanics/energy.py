@@ -81,6 +81,24 @@ def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray,
     return jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", ue, quad.check_grads if at_checks else quad.grads)
 
 
+def check_point_dets(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray):
+    """det F at the 4 x 4 check points of every element (P, S2, 16), corners included (where the barrier
+    and nma.geometry.validity evaluate it), and where it is defined: False where the reference map
+    degenerates (a collapsed corner, whose barrier weight is 0).  Needs no inversion barrier."""
+    Gc, detX = _physical(jnp.asarray(disc.check_grads), X[disc.elem_points], skip_degenerate=True)
+    return det2(jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", u[disc.elem_points], Gc)), detX > 0
+
+
+def inversion_penalty(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray, margin: float) -> jnp.ndarray:
+    """sum over the check points of max(0, margin - det F)^2: zero while det F >= margin at every one,
+    smooth (C1), and growing with how far the material is inverted.  A design objective (a term of the
+    training loss), not a term of the energy: it steers the design and its actuations away from states
+    that invert, while each equilibrium stays that of the model without it.  It samples det F (4 x 4
+    points an element); whether a state is physical is decided by nma.geometry.validity."""
+    J, defined = check_point_dets(disc, X, u)
+    return jnp.sum(jnp.where(defined, jnp.maximum(margin - J, 0.0) ** 2, 0.0))
+
+
 def _barrier(J, j_hat, kappa):
     """b(J), b'(J), b''(J) of the inversion barrier (0 for J >= j_hat; callers keep J > 0)."""
     b, db, ddb = ipc(J / j_hat)

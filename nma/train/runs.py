@@ -97,6 +97,8 @@ def fingerprint(s: TrainConfig) -> dict:
     trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
     if s.optim.schedule != "constant":
         trainer["steps"] = s.trainer.steps  # the schedule's length
+    if s.trainer.inversion_penalty > 0:  # a term of the loss (unset: as before it existed, so earlier runs resume)
+        trainer.update(inversion_penalty=s.trainer.inversion_penalty, inversion_margin=s.trainer.inversion_margin)
     material = asdict(s.material)
     if material["formulation"] == "displacement":
         del material["formulation"]  # the default: runs from before the option resume

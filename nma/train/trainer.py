@@ -29,6 +29,7 @@ from jax.flatten_util import ravel_pytree
 
 from ..errors import ConfigError, Stopped, TrainingError
 from ..geometry.validity import StateChecker, summarise
+from ..mechanics.energy import inversion_penalty
 if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads their fields only
     from ..schema import OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
@@ -145,9 +146,13 @@ class Trainer:
             losses = jnp.mean((d - self.task.actuation_targets(ts)) ** 2, axis=-1)
             status = jnp.where(jnp.all(jnp.isfinite(d), axis=-1), CONVERGED, NONFINITE_INPUT)
             return jnp.sum(losses), (status == CONVERGED, losses, status, None)
-        _, d, _, out, info = self._forward(params, ts)
+        X, d, u, out, info = self._forward(params, ts)
         ok = info.status == CONVERGED
         losses = jax.vmap(self.task.loss)(out, ts)
+        if self.cfg.inversion_penalty > 0:  # steer away from states that invert between Gauss points
+            margin = self.cfg.inversion_margin
+            penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc, X, ui, margin))(u)
+            losses = losses + self.cfg.inversion_penalty * jnp.where(ok, penalty, 0.0)
         return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info.status, info)
 
     def _apply(self, params, opt_state, grads):
