@@ -149,6 +149,7 @@ def test_the_inversion_penalty_adds_its_weighted_term_to_each_converged_samples_
     task_losses = np.asarray(jax.vmap(task.loss)(out, ts))
     assert np.all(np.asarray(ok)) and np.any(penalty > 0)
     np.testing.assert_allclose(np.asarray(losses), task_losses + 0.5 * penalty, rtol=1e-12)
+    np.testing.assert_allclose(float(total), np.sum(task_losses + 0.5 * penalty), rtol=1e-12)
     trainer.cfg = dataclasses.replace(cfg, inversion_penalty=0.0)
     np.testing.assert_allclose(np.asarray(trainer._loss_sum(params, ts)[1][1]), task_losses, rtol=1e-12)
 

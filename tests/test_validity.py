@@ -112,7 +112,7 @@ def test_the_bernstein_bound_agrees_with_a_dense_grid(scene):
 def test_the_inversion_penalty_sees_det_f_where_the_check_does(scene):
     """nma.mechanics.energy.check_point_dets (what trainer.inversion_penalty samples) gives det F at the
     same 4 x 4 points of every element as the check's first look (before any subdivision): their
-    smallest values agree, on a state inverted in one element and on the rest state."""
+    smallest values agree on a state inverted in one element; the penalty acts there and not at rest."""
     import jax.numpy as jnp
     from nma.mechanics.energy import check_point_dets, inversion_penalty
 

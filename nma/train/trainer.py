@@ -5,7 +5,7 @@ One step reads as the data flow of the design:
     d = encoder(theta, t)            actuations, d_max * tanh
     X = scene.reference(phi)         differentiable design map
     u = equilibrium(X, d)            Newton forward, adjoint backward
-    loss = task.loss(task.observe(phi, X, u, mat), t)
+    loss = task.loss(task.observe(phi, X, u, mat), t)  [+ w * inversion_penalty(X, u): trainer.inversion_penalty]
     grads -> sum over ranks -> mean over converged samples -> optax update -> project phi to its box
 A sample whose solve does not converge is left out of the mean (and counted in the log); a step in
 which no sample converges stops the run with the solver's error.
@@ -152,7 +152,7 @@ class Trainer:
         if self.cfg.inversion_penalty > 0:  # steer away from states that invert between Gauss points
             margin = self.cfg.inversion_margin
             penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc, X, ui, margin))(u)
-            losses = losses + self.cfg.inversion_penalty * jnp.where(ok, penalty, 0.0)
+            losses = losses + self.cfg.inversion_penalty * penalty
         return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info.status, info)
 
     def _apply(self, params, opt_state, grads):
