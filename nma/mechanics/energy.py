@@ -62,12 +62,18 @@ def _physical(dN: jnp.ndarray, Xe: jnp.ndarray, skip_degenerate: bool = False):
     return jnp.einsum("sqad,psqdj->psqaj", dN, inv), det
 
 
+def _check_geometry(disc: Discretisation, X: jnp.ndarray):
+    """dN/dX (P, S2, 16, 9, 2) and det(dX/dxi) (P, S2, 16) at the 4 x 4 check points of every element
+    (finite where the reference map degenerates, with det <= 0 there)."""
+    return _physical(jnp.asarray(disc.check_grads), X[disc.elem_points], skip_degenerate=True)
+
+
 def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
     """Physical basis gradients and weights from the reference control points X (n_points, 2)."""
     Xe = X[disc.elem_points]                                           # (P, S2, 9, 2)
     G, det = _physical(jnp.asarray(disc.basis_grads), Xe)
     if disc.fidelity.inversion_barrier > 0:
-        Gc, detc = _physical(jnp.asarray(disc.check_grads), Xe, skip_degenerate=True)
+        Gc, detc = _check_geometry(disc, X)
         checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
     else:  # no check points: nothing to compute (or to differentiate in the adjoint)
         checks = (jnp.zeros(det.shape[:2] + (0, 9, 2), X.dtype), jnp.zeros(det.shape[:2] + (0,), X.dtype))
@@ -85,7 +91,7 @@ def check_point_dets(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray):
     """det F at the 4 x 4 check points of every element (P, S2, 16), corners included (where the barrier
     and nma.geometry.validity evaluate it), and where it is defined: False where the reference map
     degenerates (a collapsed corner, whose barrier weight is 0).  Needs no inversion barrier."""
-    Gc, detX = _physical(jnp.asarray(disc.check_grads), X[disc.elem_points], skip_degenerate=True)
+    Gc, detX = _check_geometry(disc, X)
     return det2(jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", u[disc.elem_points], Gc)), detX > 0
 
 
