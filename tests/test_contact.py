@@ -21,6 +21,8 @@ from nma.mechanics.material import material
 from nma.mechanics.options import ContactSettings
 from nma.schema import ContactConfig, Fidelity, build
 from nma.simulator import Simulator
+from nma.solver.assembly import sparse_pattern
+from nma.solver.linear import DenseBackend
 from nma.solver.options import NewtonOptions
 
 CELL = {"name": "cell", "cells": "P", "radii_init": 0.8, "pinned": [[0, 0], [5, 0], [2.5, 0]],
@@ -112,6 +114,13 @@ def test_force_and_tangent_against_central_differences(touching):
     # the assembled tangent is the elastic blocks followed by these
     _, _, kel = energy_force_tangents(disc, quad, u, MAT)
     np.testing.assert_allclose(kel[-model.n_blocks:], blocks)
+    # the sparse assembly adds only the contact blocks within reach (the others are exactly zero): the
+    # same matrix as every block assembled densely
+    touching_blocks = np.count_nonzero(np.any(np.asarray(blocks) != 0, axis=(1, 2)))
+    assert 0 < touching_blocks < model.n_blocks
+    K = sparse_pattern(disc, upper=False).matrix(np.asarray(kel)).toarray()
+    dense = np.asarray(DenseBackend(disc)._matrix(kel, 0.0))
+    np.testing.assert_allclose(K, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
 
 
 def test_adjoint_in_contact_against_central_differences(touching):

@@ -25,13 +25,21 @@ class SparsePattern:
     indices: np.ndarray
     scatter: np.ndarray   # (E * 324,) CSR data slot of each element entry; nnz for dropped entries
     diag: np.ndarray      # (n,) data slot of each diagonal entry
+    elements: int         # the Bezier elements' blocks; the contact blocks follow them
 
     @property
     def nnz(self) -> int:
         return len(self.indices)
 
     def matrix(self, kel: np.ndarray, shift: float = 0.0) -> sp.csr_matrix:
-        data = np.bincount(self.scatter, weights=kel.reshape(-1), minlength=self.nnz + 1)[:self.nnz]
+        kel = kel.reshape(len(kel), -1)
+        E, slots = self.elements, self.scatter.reshape(len(kel), -1)
+        data = np.bincount(slots[:E].reshape(-1), weights=kel[:E].reshape(-1), minlength=self.nnz + 1)
+        # contact blocks are exactly zero unless their walls are within reach: only the others are added
+        near = E + np.flatnonzero(kel[E:].any(axis=1))
+        if near.size:
+            data += np.bincount(slots[near].reshape(-1), weights=kel[near].reshape(-1), minlength=self.nnz + 1)
+        data = data[:self.nnz]
         if shift:
             data[self.diag] += shift
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
@@ -64,4 +72,5 @@ def sparse_pattern(disc: Discretisation, upper: bool) -> SparsePattern:
     r, c = unique // n, unique % n
     indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
     diag = np.searchsorted(unique, np.arange(n) * n + np.arange(n))
-    return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag)
+    return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag,
+                         disc.elem_points.reshape(-1, 9).shape[0])
