@@ -343,10 +343,13 @@ def test_every_config_option_composes_and_validates(group):
 @pytest.mark.parametrize("name", ["rotation_single", "rotation_double"])
 def test_refinement_stage_changes_only_fidelity_and_schedule(name):
     """repro_<name>_refine continues the joint run of repro_<name> (experiments/repro.py): the same task,
-    scene, material, model and design box, only a finer discretisation and a short, slower schedule."""
+    scene, material, model and design box, only a finer discretisation, a short, slower schedule and
+    the pores' contact (their walls touch under the largest angles)."""
     base = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}"))
     refine = OmegaConf.to_container(compose_cfg(f"experiment=repro_{name}_refine"))
     assert (refine["fidelity"]["ctrl_per_patch"], refine["fidelity"]["quad_points"]) == (8, 2)
+    assert refine["contact"]["enabled"] and not base["contact"]["enabled"]
+    refine["contact"]["enabled"] = False
     assert (base["fidelity"]["ctrl_per_patch"], base["fidelity"]["quad_points"]) == (5, 2)
     assert refine["trainer"]["steps"] < base["trainer"]["steps"] and refine["optim"]["lr"] < base["optim"]["lr"]
     for cfg in (base, refine):
