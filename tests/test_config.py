@@ -341,7 +341,7 @@ def test_every_config_option_composes_and_validates(group):
 
 
 @pytest.mark.parametrize("name", ["rotation_single", "rotation_double"])
-def test_refinement_stage_changes_only_fidelity_and_schedule(name):
+def test_refinement_stage_changes_only_fidelity_schedule_and_contact(name):
     """repro_<name>_refine continues the joint run of repro_<name> (experiments/repro.py): the same task,
     scene, material, model and design box, only a finer discretisation, a short, slower schedule and
     the pores' contact (their walls touch under the largest angles)."""

@@ -89,7 +89,7 @@ def touching(cell):
     return sim, params, X, jnp.asarray(sim.solve(params, jnp.array([CLOSED]), MAT).u)
 
 
-def test_force_and_tangent_against_central_differences(touching):
+def test_force_and_tangent_against_central_differences(cell, touching):
     sim, _, X, u = touching
     disc = sim.disc
     quad = quadrature(disc, X)
@@ -114,6 +114,8 @@ def test_force_and_tangent_against_central_differences(touching):
     # the assembled tangent is the elastic blocks followed by these
     _, _, kel = energy_force_tangents(disc, quad, u, MAT)
     np.testing.assert_allclose(kel[-model.n_blocks:], blocks)
+    plain = cell[0][False].disc  # the same scene without contact: the same element blocks, bit for bit
+    np.testing.assert_array_equal(kel[:-model.n_blocks], energy_force_tangents(plain, quadrature(plain, X), u, MAT)[2])
     # the sparse assembly adds only the contact blocks within reach (the others are exactly zero): the
     # same matrix as every block assembled densely
     touching_blocks = np.count_nonzero(np.any(np.asarray(blocks) != 0, axis=(1, 2)))

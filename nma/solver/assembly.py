@@ -23,7 +23,7 @@ class SparsePattern:
     upper: bool
     indptr: np.ndarray
     indices: np.ndarray
-    scatter: np.ndarray   # (E * 324,) CSR data slot of each element entry; nnz for dropped entries
+    scatter: np.ndarray   # ((E + Ec) * 324,) CSR data slot of each block entry; nnz for dropped entries
     diag: np.ndarray      # (n,) data slot of each diagonal entry
     elements: int         # the Bezier elements' blocks; the contact blocks follow them
 
