@@ -55,7 +55,7 @@ repro-rotation-double: ## paper rotation, double: joint (5x2, refined at 8x2 wit
 repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fine-tuning -> outputs/repro/digital_mnist/
 	$(PYTHON) experiments/repro.py digital_mnist
 
-repro-shape-matching: ## pore shape matching: joint vs frozen vs no actuation -> outputs/repro/shape_matching/
+repro-shape-matching: ## pore shape matching (with contact): joint vs frozen vs no actuation -> outputs/repro/shape_matching/
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250
 
 clean:              ## remove outputs/ results and __pycache__

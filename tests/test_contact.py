@@ -82,6 +82,22 @@ def test_a_closing_pore_touches_instead_of_passing_through(cell):
     assert 0 < gap < sims[True].disc.contact.d_hat  # touching: the barrier carries the load
 
 
+def test_a_looser_path_reaches_the_same_touching_state_in_fewer_iterations(cell):
+    """solver.path_rtol closes the load steps before the last at a looser residual: the closing pore's
+    walls come into contact over several load steps, and the solve ends at the same touching state (to
+    the tolerance at full load) in fewer iterations."""
+    sims, params, X, checker = cell
+    d = jnp.array([CLOSED])
+    strict = sims[True].solve(params, d, MAT)
+    loose_sim = Simulator(sims[True].disc, "superlu", NewtonOptions(rtol=1e-12, path_rtol=1e-4, max_iters=500))
+    loose = loose_sim.solve(params, d, MAT)
+    assert int(strict.info.load_steps) > 1  # the path is walked in steps: the option acts
+    assert loose.converged and checker.check(loose.u).valid
+    assert float(loose.info.residual) <= float(loose.info.tolerance)  # the last step meets rtol
+    assert int(loose.info.iterations) < int(strict.info.iterations)
+    np.testing.assert_allclose(loose.u, strict.u, rtol=0, atol=1e-8 * float(jnp.abs(strict.u).max()))
+
+
 @pytest.fixture(scope="module")
 def touching(cell):
     sims, params, X, _ = cell

@@ -72,6 +72,10 @@ class SolverConfig(Schema):
     """Newton with adaptive load steps (nma.solver.newton) and the linear solver under it."""
     prefix: ClassVar[str] = "solver"
     rtol: float = bounded(_NEWTON.rtol, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
+    path_rtol: float = bounded(_NEWTON.path_rtol, "[0, 1]",
+                               doc="residual tolerance of the load steps before the last, relative as rtol "
+                                   "(0: rtol; the last always meets rtol): fewer iterations, but where "
+                                   "several equilibria are near, another may be reached (docs/validity.md)")
     atol: float = bounded(_NEWTON.atol, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
     max_iters: int = bounded(_NEWTON.max_iters, "[1, 100000]")
     max_step_iters: int = bounded(_NEWTON.max_step_iters, "[1, 100000]",

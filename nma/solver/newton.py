@@ -21,9 +21,12 @@ about to converge and the slow descent along the soft valley of a nearly-mechani
 residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance gets up to
 FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the
 norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the
-structure.  A warm solve (setup's `start`) walks the same way from another sample's equilibrium: the
-prescribed displacements from that sample's to this one's.  The converged state is a stationary point
-of the energy, usually a minimum; where a symmetric path has passed a buckling point it can be a saddle
+structure.  The load steps before the last may close at a looser path_rtol instead (0, the default:
+rtol): the next predictor's right-hand side carries the residual left, but where several equilibria
+lie near one actuation (walls in contact) the looser path can end on another (docs/validity.md).  A
+warm solve (setup's `start`) walks the same way from another sample's equilibrium: the prescribed
+displacements from that sample's to this one's.  The converged state is a stationary point of the
+energy, usually a minimum; where a symmetric path has passed a buckling point it can be a saddle
 (Simulator.negative_eigenvalues counts its unstable modes).
 """
 from __future__ import annotations
@@ -226,7 +229,7 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State, at=Non
     rnorm = jnp.linalg.norm(g)
     first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest: the scales come from this tangent
     tol, k_ref = jax.lax.cond(first, lambda _: _scales(eqs, opts, p, kel), lambda _: (s.tol, s.k_ref), None)
-    step_done = (~s.predictor) & (rnorm <= tol)
+    step_done = (~s.predictor) & (rnorm <= _step_tolerance(opts, s.lam, tol))
     finished = step_done & (s.lam >= 1.0)
     lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
     u_conv = jnp.where(step_done, s.u, s.u_conv)
@@ -239,6 +242,12 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State, at=Non
     state = s._replace(u_conv=u_conv, lam_conv=lam_conv, dlam=dlam, predictor=predictor,
                        steps=s.steps + step_done, status=status, tol=tol, k_ref=k_ref, rnorm=rnorm)
     return Linearised(state, E0, g, kel, rhs)
+
+
+def _step_tolerance(opts: NewtonOptions, lam, tol):
+    """The residual that closes a load step: the solve's tolerance at full load, the looser path_rtol
+    before it (the next predictor's right-hand side carries the residual left, so it is not lost)."""
+    return jnp.where(lam >= 1.0, tol, tol * max(1.0, opts.path_rtol / opts.rtol))
 
 
 def _tick(s: _State, opts: NewtonOptions) -> _State:
@@ -325,7 +334,8 @@ def _cut(s: _State, opts: NewtonOptions, a, ok, flipped, descent):
     # ...and a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations
     # from converging (the residual need not fall monotonically there): it gets them
     recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
-    finishing = (recent <= FINISHING_RESIDUAL * s.tol) & (step_it < opts.max_step_iters + FINISHING_ITERS)
+    finishing = ((recent <= FINISHING_RESIDUAL * _step_tolerance(opts, s.lam, s.tol))
+                 & (step_it < opts.max_step_iters + FINISHING_ITERS))
     cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
     return step_it, damped, cut
 

@@ -17,6 +17,7 @@ WARM_START_NEEDS_HOST = ("needs a host linear solver (pardiso, superlu): solver.
 @dataclass(frozen=True)
 class NewtonOptions:
     rtol: float = 1e-10             # residual tolerance relative to the full-load force scale
+    path_rtol: float = 0.0          # rtol of the load steps before the last (0: rtol); may change the branch
     atol: float = 1e-13             # noise floor relative to (max element stiffness x size)
     max_iters: int = 200
     max_step_iters: int = 100       # corrector iterations before a load step fails (a few more near convergence)
