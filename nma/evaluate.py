@@ -39,7 +39,8 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     settings = build(EvaluateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
     run, _, _ = load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene))
+    contact = None if settings.contact is None else settings.contact.resolved(run.scene)
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene), contact=contact)
 
 
 def evaluate_at(settings, run: Path, fidelity, solver, contact=None, eval_subset=None) -> dict:

@@ -38,7 +38,8 @@ def validate(cfg: DictConfig) -> SimulateConfig:
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene),
+                               contact=settings.contact.resolved(settings.scene))
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:

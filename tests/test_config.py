@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from conftest import compose_cfg
 from nma import cli, config, export, run, simulate
 from nma.errors import ConfigError, Stopped
-from nma.schema import ExportConfig, Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
+from nma.schema import ContactConfig, ExportConfig, Fidelity, MaterialConfig, SceneConfig, TrainerConfig, build
 from nma.train.runs import validate
 
 BAD_RUN = [
@@ -325,6 +325,44 @@ def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
     mixed = fingerprint(validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed")))
     assert default["material"] == {"E": 0.07, "nu": 0.3}
     assert mixed["material"]["formulation"] == "mixed" and "contact" not in default
+
+
+@pytest.mark.parametrize("overrides, contact", [
+    (["task=translation"], False), (["task=digital_mnist"], False),  # their states are physical without it
+    (["task=rotation_single"], True), (["task=rotation_double"], True), (["task=shape_matching"], True),
+    (["task=shape_matching", "contact=off"], False), (["task=translation", "contact=on"], True),
+    (["experiment=repro_rotation_double"], False),  # the reproductions' joint stage, as measured
+    (["experiment=repro_rotation_double_refine"], True)])
+def test_contact_auto_follows_the_scene_and_a_stated_choice_wins(overrides, contact):
+    """contact=auto (the default) is resolved once, by the scene's `contact` field, before any work;
+    the resolved choice is what a checkpoint's fingerprint records."""
+    from nma.train.runs import fingerprint
+
+    settings = validate(compose_cfg(*overrides, "logger=none"))
+    assert settings.contact.enabled is contact
+    assert ("contact" in fingerprint(settings)) is contact and "contact" not in fingerprint(settings)["scene"]
+
+
+def test_a_run_from_before_contact_auto_resolves_as_it_trained(tmp_path):
+    """A run's saved config holds what it trained with: one from before contact=auto (contact off
+    explicitly, its scene without a `contact` field) loads with contact off; a new run's (contact
+    auto, the scene's field saved with it) loads as the scene said."""
+    from nma.train import checkpoint
+    from nma.train.runs import load_run
+
+    def saved(run, cfg):
+        (run / ".hydra").mkdir(parents=True)
+        OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
+        checkpoint.save(run / "checkpoints", 1, {"params": {"net": {}, "geom": {}}, "step": 1})
+        return load_run(run)[0]
+
+    before = OmegaConf.to_container(compose_cfg("task=rotation_double", "contact=off", "logger=none"))
+    del before["scene"]["contact"]
+    assert saved(tmp_path / "before", before).contact.enabled is False
+    now = compose_cfg("task=rotation_double", "logger=none")
+    assert now.contact.enabled is None and saved(tmp_path / "now", now).contact.enabled is True
+    with pytest.raises(ValueError, match="contact=auto is decided by the scene"):
+        build(ContactConfig, {"enabled": None}).settings()
 
 
 @pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment",

@@ -1,7 +1,7 @@
 """The mechanical model's settings: material, discretisation (fidelity), contact, solver."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import ClassVar, Optional
 
 from ..geometry.options import Resolution
@@ -51,14 +51,21 @@ class ContactConfig(Schema):
     closing pore's walls touch instead of passing through each other; nothing changes while they are
     further apart than `distance`."""
     prefix: ClassVar[str] = "contact"
-    enabled: bool = False
+    enabled: Optional[bool] = False  # None (contact=auto): as the scene says (SceneConfig.contact); resolved()
     distance: float = bounded(_CONTACT.distance, "(0, 0.25]", doc="gap at which the barrier starts, as a fraction "
                                                                   "of the median pore's width")
     stiffness: float = bounded(_CONTACT.stiffness, "(0, 1000]", doc="barrier stiffness / (shear modulus x distance)")
     per_span: int = bounded(_CONTACT.per_span, "[1, 16]", doc="chords per knot span of a pore wall")
 
+    def resolved(self, scene) -> "ContactConfig":
+        """These settings with contact=auto (enabled None) decided by the scene's own default (its
+        `contact` field: on for the scenes whose pores close under their tasks' actuations)."""
+        return self if self.enabled is not None else replace(self, enabled=bool(scene.contact))
+
     def settings(self) -> Optional[ContactSettings]:
         """The model's own options, or None with contact off."""
+        if self.enabled is None:
+            raise ValueError("contact=auto is decided by the scene: resolve it first (ContactConfig.resolved)")
         if not self.enabled:
             return None
         return ContactSettings(**{f.name: getattr(self, f.name) for f in fields(ContactSettings)})

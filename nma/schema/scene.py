@@ -123,6 +123,9 @@ class SceneConfig(Schema):
     central_pore: List[Any] = field(default_factory=list)    # ring of grid nodes [[i, j], ...], counter-clockwise
     central_radii_init: float = bounded(0.8, "(0, 1)")
     colours: bool = False
+    # contact=auto (the commands' default) turns the pores' self-contact on for a scene that says so: one
+    # whose pores close under its task's actuations, where without contact they pass through themselves
+    contact: bool = False
 
     def rows(self) -> list[str]:
         return [r.replace(" ", "") for r in self.cells.split()]

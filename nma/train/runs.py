@@ -25,7 +25,8 @@ def validate(cfg: DictConfig) -> TrainConfig:
     TASKS.get(settings.task.factory)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene))
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene),
+                               contact=settings.contact.resolved(settings.scene))
 
 
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
@@ -109,7 +110,9 @@ def fingerprint(s: TrainConfig) -> dict:
                 del task[key]  # unset: as before these existed, so that earlier runs resume
         if s.task.dataset:  # the descriptors themselves, not only the file's name
             task["dataset_sha256"] = _sha256(Path(s.task.dataset))
-    return {"task": task, "scene": asdict(s.scene), "model": asdict(s.model),
+    scene = asdict(s.scene)
+    del scene["contact"]  # the scene's default for contact=auto: the resolved choice is s.contact, below
+    return {"task": task, "scene": scene, "model": asdict(s.model),
             "fidelity": asdict(s.fidelity), "material": material, "optim": asdict(s.optim),
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
 
