@@ -5,7 +5,8 @@
 
 Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set (or
 eval_subset=N samples of it, evenly spaced, for a set too large to solve finely) at the run's own training
-fidelity and at the one asked for, with the same code, and writes both side by side into
+fidelity and at the one asked for, with the same code and the run's own solver settings (solver=<backend>
+and solver.* choose others), and writes both side by side into
 <run>/evaluate/<ctrl>x<quad>[_contact][_<N>_samples].json (and one JSON line on stdout): the metric, its per-sample
 values, failed solves, how many states are not physical objects (nma/geometry/validity.py), the change,
 and the DOFs of each discretisation.  A design that only works in
@@ -37,8 +38,8 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     from .solver import linear  # noqa: F401  (register backends)
 
     settings = build(EvaluateConfig, cfg)
-    LINEAR_SOLVERS.get(settings.solver.linear)
     run, _, _ = load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
+    LINEAR_SOLVERS.get((settings.solver or run.solver).linear)
     contact = None if settings.contact is None else settings.contact.resolved(run.scene)
     return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene), contact=contact)
 
@@ -68,8 +69,9 @@ def evaluate(s: EvaluateConfig) -> dict:
 
     run = Path(s.run)
     settings, _, checkpoint = load_run(run)
-    trained = evaluate_at(settings, run, settings.fidelity, s.solver, eval_subset=s.eval_subset)
-    refined = evaluate_at(settings, run, s.fidelity, s.solver, s.contact, s.eval_subset)
+    solver = s.solver or settings.solver  # the run's own where none is chosen: its metric is reproduced
+    trained = evaluate_at(settings, run, settings.fidelity, solver, eval_subset=s.eval_subset)
+    refined = evaluate_at(settings, run, s.fidelity, solver, s.contact, s.eval_subset)
     a, b = np.asarray(trained["per_sample"]), np.asarray(refined["per_sample"])
     result = {"run": str(run), "checkpoint": str(checkpoint), "task": settings.task.name,
               "metric": trained["metric_name"], "unit": trained["unit"],
@@ -112,6 +114,11 @@ def hydra_main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
+    fields = [a.split("=")[0] for a in sys.argv[1:] if a.startswith("solver.")]
+    if fields and not any(a.startswith("solver=") for a in sys.argv[1:]):  # null group: Hydra has no node to set
+        cli._say(f"{fields[0]} needs a solver chosen first (solver=auto {fields[0]}=...): without solver=, "
+                 f"nma.evaluate solves with the run's own solver settings")
+        sys.exit(cli.BAD_INPUT)
     cli.preflight("evaluate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
     hydra_main()
 

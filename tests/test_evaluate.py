@@ -60,3 +60,35 @@ def test_evaluate_on_a_subset_reads_the_same_samples_of_the_run(translation_run)
     assert json.loads((translation_run / "evaluate" / "5x3_3_samples.json").read_text())["samples"] == 3
     with pytest.raises(ConfigError, match=r"eval_subset must be .* in \[1, 100000000\], got 0"):
         EvaluateConfig(run=str(translation_run), eval_subset=0)
+
+
+def test_evaluate_solves_with_the_runs_own_solver_unless_told(tmp_path, translation_run):
+    """Without solver=, a run is re-evaluated with the solver settings it trained with (so its metric is
+    reproduced): a run whose Newton had 2 iterations fails its solves again; solver= chooses others."""
+    import shutil
+
+    from omegaconf import OmegaConf
+
+    from nma.evaluate import evaluate
+    from nma.schema import EvaluateConfig, Fidelity, SolverConfig
+
+    run = tmp_path / "run"
+    shutil.copytree(translation_run / ".hydra", run / ".hydra")
+    shutil.copytree(translation_run / "checkpoints", run / "checkpoints")
+    cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+    cfg.solver.max_iters = 2
+    OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
+    own = evaluate(EvaluateConfig(run=str(run), fidelity=Fidelity(5, 3), eval_subset=2))
+    assert own["training_fidelity"]["failed_solves"] == 2 and own["evaluated_fidelity"]["failed_solves"] == 2
+    told = evaluate(EvaluateConfig(run=str(run), fidelity=Fidelity(5, 3), eval_subset=2, solver=SolverConfig()))
+    assert told["training_fidelity"]["failed_solves"] == 0
+
+
+def test_evaluate_asks_for_a_solver_before_its_fields(monkeypatch, capsys, translation_run):
+    from nma import evaluate
+
+    monkeypatch.setattr("sys.argv", ["nma.evaluate", f"run={translation_run}", "solver.rtol=1e-12"])
+    with pytest.raises(SystemExit) as exit_:
+        evaluate.main()
+    assert exit_.value.code == 2
+    assert "solver.rtol needs a solver chosen first (solver=auto solver.rtol=...)" in capsys.readouterr().err

@@ -106,7 +106,7 @@ class EvaluateConfig(Schema):
     discretisation (and solver), side by side with its training fidelity."""
     run: str = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
-    solver: SolverConfig = field(default_factory=SolverConfig)
+    solver: Optional[SolverConfig] = None  # solver=<backend> (and solver.*): evaluate with it; null: as the run trained
     contact: Optional[ContactConfig] = None  # contact=on|off: evaluate with or without it; null: as the run trained
     eval_subset: Optional[int] = bounded(None, "[1, 100000000]", doc="this many samples of the task's evaluation "
                                          "set, evenly spaced through it (as trainer.eval_subset picks them), at "
