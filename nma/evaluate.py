@@ -70,11 +70,13 @@ def evaluate(s: EvaluateConfig) -> dict:
     run = Path(s.run)
     settings, _, checkpoint = load_run(run)
     solver = s.solver or settings.solver  # the run's own where none is chosen: its metric is reproduced
+    contact = s.contact and s.contact.resolved(settings.scene)
     trained = evaluate_at(settings, run, settings.fidelity, solver, eval_subset=s.eval_subset)
-    refined = evaluate_at(settings, run, s.fidelity, solver, s.contact, s.eval_subset)
+    refined = evaluate_at(settings, run, s.fidelity, solver, contact, s.eval_subset)
     a, b = np.asarray(trained["per_sample"]), np.asarray(refined["per_sample"])
     result = {"run": str(run), "checkpoint": str(checkpoint), "task": settings.task.name,
               "metric": trained["metric_name"], "unit": trained["unit"],
+              "solver": {"from": "run" if s.solver is None else "solver=", **dataclasses.asdict(solver)},
               "samples": len(a), "eval_subset": s.eval_subset,
               "training_fidelity": trained, "evaluated_fidelity": refined,
               "change": refined["metric"] - trained["metric"],
@@ -114,11 +116,12 @@ def hydra_main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    fields = [a.split("=")[0] for a in sys.argv[1:] if a.startswith("solver.")]
-    if fields and not any(a.startswith("solver=") for a in sys.argv[1:]):  # null group: Hydra has no node to set
-        cli._say(f"{fields[0]} needs a solver chosen first (solver=auto {fields[0]}=...): without solver=, "
-                 f"nma.evaluate solves with the run's own solver settings")
-        sys.exit(cli.BAD_INPUT)
+    for group, default in (("solver", "auto"), ("contact", "on")):  # null groups: Hydra has no node to set
+        fields = [a.split("=")[0].lstrip("+") for a in sys.argv[1:] if a.lstrip("+").startswith(group + ".")]
+        if fields and not any(a.lstrip("+").startswith(group + "=") for a in sys.argv[1:]):
+            cli._say(f"{fields[0]} needs {group}= chosen first ({group}={default} {fields[0]}=...): without it, "
+                     f"nma.evaluate uses the run's own {group} settings")
+            sys.exit(cli.BAD_INPUT)
     cli.preflight("evaluate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
     hydra_main()
 

@@ -53,8 +53,8 @@ class Simulator:
         from .fidelity import resolve
 
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
-        disc = discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene), contact.resolved(scene).settings(),
-                          formulation)
+        disc = discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene),
+                          contact.resolved(scene).settings(), formulation)
         return cls(disc, solver.linear, solver.newton(), solver.workers)
 
     @property

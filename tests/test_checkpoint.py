@@ -53,7 +53,9 @@ def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(tmp_pa
 @pytest.mark.parametrize("change, named", [("trainer.batch_size=4", "trainer.batch_size: 2 -> 4"),
                                            ("model.hidden=[8]", "model.hidden: None -> [8]"),
                                            ("task.box_half_width=1.0", "task.box_half_width: 1.5 -> 1.0"),
-                                           ("trainer.inversion_penalty=0.1", "trainer.inversion_penalty: '(unset)' -> 0.1")])
+                                           ("trainer.inversion_penalty=0.1", "trainer.inversion_penalty: '(unset)' -> 0.1"),
+                                           # a run from before contact=auto, resumed where the scene now says on
+                                           ("contact=on", "(it trained without contact: add contact=off)")])
 def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translation_run, monkeypatch, capsys,
                                                              change, named):
     from nma import run

@@ -356,17 +356,23 @@ def test_a_run_from_before_contact_auto_resolves_as_it_trained(tmp_path):
         checkpoint.save(run / "checkpoints", 1, {"params": {"net": {}, "geom": {}}, "step": 1})
         return load_run(run)[0]
 
+    from nma.train.runs import fingerprint
+
     before = OmegaConf.to_container(compose_cfg("task=rotation_double", "contact=off", "logger=none"))
     del before["scene"]["contact"]
     assert saved(tmp_path / "before", before).contact.enabled is False
+    del before["contact"]  # and from before contact existed at all
+    older = saved(tmp_path / "older", before)
+    assert older.contact.enabled is False and "contact" not in fingerprint(older)
+    assert "contact" not in fingerprint(older)["scene"]
     now = compose_cfg("task=rotation_double", "logger=none")
     assert now.contact.enabled is None and saved(tmp_path / "now", now).contact.enabled is True
     with pytest.raises(ValueError, match="contact=auto is decided by the scene"):
         build(ContactConfig, {"enabled": None}).settings()
 
 
-@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "model", "optim", "trainer", "logger", "experiment",
-                                   "debug"])
+@pytest.mark.parametrize("group", ["task", "solver", "fidelity", "contact", "model", "optim", "trainer", "logger",
+                                   "experiment", "debug"])
 def test_every_config_option_composes_and_validates(group):
     needs = {"repro_mnist_fit": ["task.lookup_run=outputs/repro/digital_mnist/lookup"]}  # a phase's input
     for option in config.options(group):

@@ -80,15 +80,20 @@ def test_evaluate_solves_with_the_runs_own_solver_unless_told(tmp_path, translat
     OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
     own = evaluate(EvaluateConfig(run=str(run), fidelity=Fidelity(5, 3), eval_subset=2))
     assert own["training_fidelity"]["failed_solves"] == 2 and own["evaluated_fidelity"]["failed_solves"] == 2
+    assert own["solver"]["from"] == "run" and own["solver"]["max_iters"] == 2
     told = evaluate(EvaluateConfig(run=str(run), fidelity=Fidelity(5, 3), eval_subset=2, solver=SolverConfig()))
     assert told["training_fidelity"]["failed_solves"] == 0
 
 
-def test_evaluate_asks_for_a_solver_before_its_fields(monkeypatch, capsys, translation_run):
+@pytest.mark.parametrize("field, said", [("solver.rtol=1e-12", "solver.rtol needs solver= chosen first (solver=auto"),
+                                         ("++solver.rtol=1e-12", "solver.rtol needs solver= chosen first (solver=auto"),
+                                         ("contact.distance=0.01", "contact.distance needs contact= chosen first")])
+def test_evaluate_asks_for_a_group_before_its_fields(monkeypatch, capsys, field, said):
+    """solver and contact are the run's own unless chosen: a field of either alone is exit 2, one line."""
     from nma import evaluate
 
-    monkeypatch.setattr("sys.argv", ["nma.evaluate", f"run={translation_run}", "solver.rtol=1e-12"])
+    monkeypatch.setattr("sys.argv", ["nma.evaluate", "run=/nonexistent", field])
     with pytest.raises(SystemExit) as exit_:
         evaluate.main()
-    assert exit_.value.code == 2
-    assert "solver.rtol needs a solver chosen first (solver=auto solver.rtol=...)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and said in err and "Traceback" not in err

@@ -90,8 +90,12 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
     diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}"
             for k in sorted(old.keys() | new.keys()) if old.get(k) != new.get(k)]
     if diff:
+        changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
+        # contact=auto turned contact on for a scene whose runs trained without it before it existed
+        hint = (" (it trained without contact: add contact=off)" if all(k.startswith("contact.") for k in changed)
+                and not any(k.startswith("contact.") for k in old) else "")
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
-                          + "; ".join(diff) + "). Resume with the same settings, start a new run directory, "
+                          + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "
                           "or set trainer.resume=force to continue anyway")
 
 
