@@ -100,12 +100,14 @@ def hydra_main(cfg: DictConfig) -> None:
         result = evaluate(validate(cfg))
     t, e = result["training_fidelity"], result["evaluated_fidelity"]
     logging.getLogger("nma.evaluate").info(
-        "%s: %.4g %s at the training fidelity (%d dofs), %.4g at %dx%d (%d dofs); change %+.3g", result["metric"],
-        t["metric"], result["unit"], t["fidelity"]["dofs"], e["metric"], e["fidelity"]["ctrl_per_patch"],
-        e["fidelity"]["quad_points"], e["fidelity"]["dofs"], result["change"])
+        "%s: %.4g %s at the training fidelity (%d dofs, %d of %d solves failed), %.4g at %dx%d (%d dofs, %d failed); "
+        "change %+.3g (each over its converged solves)", result["metric"], t["metric"], result["unit"],
+        t["fidelity"]["dofs"], t["failed_solves"], result["samples"], e["metric"], e["fidelity"]["ctrl_per_patch"],
+        e["fidelity"]["quad_points"], e["fidelity"]["dofs"], e["failed_solves"], result["change"])
     brief = {k: v for k, v in result.items() if k not in ("training_fidelity", "evaluated_fidelity")}
     brief.update(training_metric=t["metric"], evaluated_metric=e["metric"],
-                 training_invalid_states=t["invalid_states"], evaluated_invalid_states=e["invalid_states"])
+                 training_invalid_states=t["invalid_states"], evaluated_invalid_states=e["invalid_states"],
+                 training_failed_solves=t["failed_solves"], evaluated_failed_solves=e["failed_solves"])
     for which, record in (("training", t), ("evaluated", e)):
         if record["invalid_states"]:
             from .geometry.validity import describe
