@@ -44,7 +44,8 @@ OBSERVE_CHUNK = 8  # samples observed at once
 class Evaluation:
     """One evaluation at the current parameters: what metrics.json records of it, and the solved states
     that the figures and the HDF5 fields draw."""
-    record: dict       # step, the task's metric by its name and its extra metrics, failed_solves, the
+    record: dict       # step, the task's metric by its name and its extra metrics, failed_solves and
+                       # failed_samples (indices; their per_sample values are of the unconverged state), the
                        # validity summary and invalid_samples, per_sample, eval_actuations (JSON)
     X: Any             # (n_points, 2) reference control points
     d: Any             # (n, n_actuations) actuations
@@ -242,7 +243,8 @@ class Trainer:
         states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
-                  "failed_solves": int((~ok).sum()), **summarise(states), "invalid_samples": invalid,
+                  "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
+                  **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
         warm = self.sim.warm_starts
         if warm is not None:  # how the run's solves started, and whether warm starts held
