@@ -166,6 +166,16 @@ def _bad_input(exc: Exception, overrides: list[str] = ()) -> str:
                         f"spaces or commas is quoted ('a b'), a sweep is a,b under --multirun")
     if isinstance(exc, (HydraException, OmegaConfBaseException)):
         return _one_line(exc)
+    if isinstance(exc, AssertionError) and "NoneType" in str(exc):  # omegaconf: a field of a group left at null
+        for o in overrides:
+            key = o.lstrip("+").split("=")[0]
+            group = key.split(".")[0]
+            if "." in key and not any(x.lstrip("+").startswith(group + "=") for x in overrides):
+                from .config import options
+
+                choices = options(group)
+                return (f"{key} needs {group}= chosen first ({group}={choices[0]} {key}=...; one of {choices}): "
+                        f"left unchosen, the command picks it (nma.evaluate: the run's own)")
     raise exc
 
 

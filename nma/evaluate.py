@@ -119,12 +119,6 @@ def hydra_main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    for group, default in (("solver", "auto"), ("contact", "on")):  # null groups: Hydra has no node to set
-        fields = [a.split("=")[0].lstrip("+") for a in sys.argv[1:] if a.lstrip("+").startswith(group + ".")]
-        if fields and not any(a.lstrip("+").startswith(group + "=") for a in sys.argv[1:]):
-            cli._say(f"{fields[0]} needs {group}= chosen first ({group}={default} {fields[0]}=...): without it, "
-                     f"nma.evaluate uses the run's own {group} settings")
-            sys.exit(cli.BAD_INPUT)
     cli.preflight("evaluate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
     hydra_main()
 
