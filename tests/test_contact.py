@@ -23,6 +23,7 @@ from nma.schema import ContactConfig, Fidelity, build
 from nma.simulator import Simulator
 from nma.solver.assembly import sparse_pattern
 from nma.solver.linear import DenseBackend
+from nma.solver import newton
 from nma.solver.options import NewtonOptions
 
 CELL = {"name": "cell", "cells": "P", "radii_init": 0.8, "pinned": [[0, 0], [5, 0], [2.5, 0]],
@@ -96,6 +97,21 @@ def test_a_looser_path_reaches_the_same_touching_state_in_fewer_iterations(cell)
     assert float(loose.info.residual) <= float(loose.info.tolerance)  # the last step meets rtol
     assert int(loose.info.iterations) < int(strict.info.iterations)
     np.testing.assert_allclose(loose.u, strict.u, rtol=0, atol=1e-8 * float(jnp.abs(strict.u).max()))
+
+
+def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
+    """A load step's linearised response does not see the barrier until the walls are within d_hat, so
+    its time of impact stops it short; the load then goes on without the free dofs
+    (newton._past_the_walls) and the correctors press the walls into contact at that load.  The same
+    touching state as a path whose load stops with the predictor (the code before), in fewer load steps."""
+    sims, params, X, checker = cell
+    d = jnp.array([CLOSED])
+    on = sims[True].solve(params, d, MAT)
+    monkeypatch.setattr(newton, "_past_the_walls", lambda *args: jnp.zeros(()))
+    stopped = Simulator(sims[True].disc, "superlu", TIGHT).solve(params, d, MAT)  # new kernels, traced without it
+    assert on.converged and stopped.converged and checker.check(on.u).valid
+    assert int(on.info.load_steps) < int(stopped.info.load_steps)
+    np.testing.assert_allclose(on.u, stopped.u, rtol=0, atol=1e-8 * float(jnp.abs(stopped.u).max()))
 
 
 @pytest.fixture(scope="module")

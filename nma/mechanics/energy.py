@@ -256,10 +256,18 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
 
 def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf) -> jnp.ndarray:
     """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point (and, with
-    the inversion barrier, at every check point; with contact, before any pore-wall vertex meets a chord).
+    the inversion barrier, at every check point; with contact, before any pore-wall vertex meets a chord):
+    the smaller of step_bounds'."""
+    return jnp.minimum(*step_bounds(disc, quad, u, du, horizon))
 
-    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the bound is the smallest positive root.  The
-    contact bound is exact up to `horizon` (a caller that takes min(1, fraction * bound) needs no more);
+
+def step_bounds(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf):
+    """The two bounds of a step along du: the material's (det F > 0 at every Gauss point, and with the
+    inversion barrier at every check point) and the walls' (with contact, the time of impact of a pore-wall
+    vertex on a chord; inf without).
+
+    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the material's bound is the smallest positive root.
+    The walls' bound is exact up to `horizon` (a caller that takes min(1, fraction * bound) needs no more);
     beyond it a step is not bounded by contact."""
     bound = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
                                                                         quad.grads))
@@ -268,9 +276,8 @@ def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.nda
         Fc = deformation_gradient(disc, quad, u, at_checks=True)
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
         bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
-    if disc.contact:
-        bound = jnp.minimum(bound, contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, horizon))
-    return bound
+    walls = contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, horizon) if disc.contact else jnp.inf
+    return bound, jnp.asarray(walls, bound.dtype)
 
 
 def _first_root(F, dF):
