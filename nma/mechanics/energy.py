@@ -254,13 +254,6 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
     return energy_force_tangents(disc, quad, u, mat)[1:]
 
 
-def max_step(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf) -> jnp.ndarray:
-    """Largest alpha > 0 with det F(u + t du) > 0 for all t in [0, alpha) at every Gauss point (and, with
-    the inversion barrier, at every check point; with contact, before any pore-wall vertex meets a chord):
-    the smaller of step_bounds'."""
-    return jnp.minimum(*step_bounds(disc, quad, u, du, horizon))
-
-
 def step_bounds(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf):
     """The two bounds of a step along du: the material's (det F > 0 at every Gauss point, and with the
     inversion barrier at every check point) and the walls' (with contact, the time of impact of a pore-wall
