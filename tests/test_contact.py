@@ -157,6 +157,33 @@ def test_force_and_tangent_against_central_differences(cell, touching):
     np.testing.assert_allclose(K, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
 
 
+def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_the_exact_tangent_does(cell, touching):
+    """contact.force_and_blocks(normal=...): the same energy and force, and tangent blocks that keep each
+    term's normal stiffness only, positive semi-definite where the exact blocks are not.  Newton takes them
+    while its residual is large (solver.contact_exact_below) and ends on the same touching state as with
+    the exact tangent throughout."""
+    sim, params, X, u = touching
+    quad = quadrature(sim.disc, X)
+    model, walls, mu = sim.disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
+    e, force, exact = contact.force_and_blocks(model, walls, X + u, mu)
+    e_n, force_n, normal = contact.force_and_blocks(model, walls, X + u, mu, normal=jnp.asarray(True))
+    assert float(e_n) == float(e)
+    np.testing.assert_array_equal(force_n, force)
+    lowest = lambda blocks: np.linalg.eigvalsh(np.asarray(blocks)).min(axis=1)  # noqa: E731
+    scale = float(np.abs(np.asarray(exact)).max())
+    assert lowest(exact).min() < -1e-3 * scale  # the exact blocks are indefinite in this touching state
+    assert lowest(normal).min() > -1e-12 * scale
+    # only the blocks of walls within d_hat carry terms, and each of them changes
+    differ = np.any(np.asarray(exact) != np.asarray(normal), axis=(1, 2))
+    assert 0 < differ.sum() == np.count_nonzero(np.any(np.asarray(exact) != 0, axis=(1, 2)))
+    d = jnp.array([CLOSED])
+    exact_sim = Simulator(sim.disc, "superlu", NewtonOptions(rtol=1e-12, max_iters=500, contact_exact_below=0.0))
+    a, b = sim.solve(params, d, MAT), exact_sim.solve(params, d, MAT)
+    assert sim.options.contact_exact_below > 0 and a.converged and b.converged
+    assert not np.array_equal(np.asarray(a.info.residual_history), np.asarray(b.info.residual_history))  # it acts
+    np.testing.assert_allclose(a.u, b.u, rtol=0, atol=1e-8 * float(jnp.abs(b.u).max()))
+
+
 def test_adjoint_in_contact_against_central_differences(touching):
     """The gradient of the contact equilibrium with respect to the radii, through the adjoint."""
     sim, params, X, _ = touching

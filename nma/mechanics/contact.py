@@ -240,10 +240,11 @@ def _line_d2(z):
     return c * c / jnp.dot(e, e)
 
 
-def _term_derivatives(z, w, inv_d2):
+def _term_derivatives(z, w, inv_d2, normal=False):
     """Energy, gradient (3, 2) and Hessian (3, 2, 3, 2) of one term, w b(d^2(z[0], [z[1], z[2]]) / d_hat^2),
     in closed form per regime of the point-chord distance: nearest to an end (|p - a|^2 or |p - b|^2,
-    constant Hessians) or to the chord's inside (the squared distance to its line)."""
+    constant Hessians) or to the chord's inside (the squared distance to its line).  `normal` (traced or
+    False): where it holds, the Hessian's normal part only, positive semi-definite (force_and_blocks)."""
     p, a, b = z
     e = b - a
     t = jnp.dot(p - a, e) / jnp.maximum(jnp.dot(e, e), 1e-300)
@@ -256,9 +257,18 @@ def _term_derivatives(z, w, inv_d2):
     d2 = jnp.where(inner, _line_d2(z), jnp.dot(r, r))
     g = jnp.where(inner, jax.grad(_line_d2)(z), g_end)
     H = jnp.where(inner, jax.hessian(_line_d2)(z), H_end)
-    b0, b1, b2 = ipc(d2 * inv_d2)
+    s = d2 * inv_d2
+    b0, b1, b2 = ipc(s)
     gs = g * inv_d2
-    return w * b0, w * b1 * gs, w * (b2 * jnp.einsum("zi,yj->ziyj", gs, gs) + b1 * H * inv_d2)
+    ggT = jnp.einsum("zi,yj->ziyj", gs, gs)
+    H_term = b2 * ggT + b1 * H * inv_d2
+    if normal is not False:
+        # with d the distance, grad d = g / 2d and the barrier's curvature along d is (4 s b2 + 2 b1) / d_hat^2:
+        # that curvature on grad d grad d^T, the rest of b1 H (sliding along the chord, turning it) left out,
+        # and nothing where the barrier is concave in d
+        along = jnp.maximum(b2 + 0.5 * b1 / jnp.maximum(s, 1e-300), 0.0) * ggT
+        H_term = jnp.where(normal, along, H_term)
+    return w * b0, w * b1 * gs, w * H_term
 
 
 def _blocks_energy(model: ContactModel, walls: Walls, v, blocks):
@@ -299,12 +309,20 @@ def _energy_jvp(model, primals, tangents):
     return jax.jvp(partial(_energy_everywhere, model), primals, tangents)
 
 
-def force_and_blocks(model: ContactModel, walls: Walls, x, mu, before=None):
+def force_and_blocks(model: ContactModel, walls: Walls, x, mu, before=None, normal=False):
     """Energy, nodal force (n_points, 2) and the (Ec, 18, 18) tangent blocks (dofs ordered as
     block_points, (a, i) -> 2 a + i) of the contact at deformed control points x, after the blocks
     `before` where given (the elements' tangents: one array written once, not a concatenation of two).
     Only blocks whose segments come within d_hat contribute, few while the pores are open: only they are
-    differentiated, and only they are added to the zeros of the others."""
+    differentiated, and only they are added to the zeros of the others.
+
+    `normal` (a traced bool, or False): the blocks of each term's normal stiffness only, positive
+    semi-definite, in place of the exact Hessian.  The exact one has the term b'(s) H(d^2), b' < 0, which is
+    indefinite and grows like 1/gap as walls close; Newton's correctors far from equilibrium then swing
+    the walls in and out of the barrier (IPC's projected Newton makes each term's Hessian positive
+    semi-definite for the same reason, Li et al. 2020).  Newton takes them while far from equilibrium and
+    the exact blocks near it (NewtonOptions.contact_exact_below), where they converge quadratically; the
+    adjoint always takes the exact ones."""
     k = model.settings.per_span
     basis, seg = jnp.asarray(model.vertex_basis), jnp.asarray(model.segments)
     kappa, inv_d2 = stiffness(model, mu), 1.0 / model.d_hat ** 2
@@ -328,7 +346,8 @@ def force_and_blocks(model: ContactModel, walls: Walls, x, mu, before=None):
         w = jnp.where(acts, walls.weights[own][..., None], 0.0)                  # (b, 2, k + 1, k)
         flat = lambda a: a.reshape((-1,) + a.shape[4:])  # noqa: E731  (terms in one axis)
         R, Z, W = flat(rows), flat(z), flat(w)
-        e, gz, Hz = jax.vmap(_term_derivatives, (0, 0, None))(Z, W, inv_d2)   # (T,), (T, 3, 2), (T, 3, 2, 3, 2)
+        terms = partial(_term_derivatives, inv_d2=inv_d2, normal=normal)
+        e, gz, Hz = jax.vmap(terms)(Z, W)                                  # (T,), (T, 3, 2), (T, 3, 2, 3, 2)
         e, gz, Hz = kappa * jnp.sum(e), kappa * gz, kappa * Hz
         per = 2 * (k + 1) * k
         g = jnp.einsum("tzc,tzi->tci", R, gz).reshape(-1, per, 6, 2).sum(1)

@@ -228,10 +228,12 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
     return jnp.sum(energy), unsplit(fe), unsplit(Ke)
 
 
-def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
+def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray,
+                          contact_normal=False):
     """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass,
     followed by the contact blocks (Ec, 18, 18) where the scene has contact (disc.block_points lists the
-    points of each); tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
+    points of each; `contact_normal`: their normal stiffness only, nma.mechanics.contact.force_and_blocks);
+    tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
     mu, kappa = lame(mat)
     mixed = disc.formulation == "mixed"
     # the volumetric term at the Gauss points, or per element below
@@ -245,7 +247,8 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
     Ke = Ke.reshape(-1, 18, 18)
     if disc.contact:
-        ec, fc, Ke = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu, before=Ke)
+        ec, fc, Ke = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu, before=Ke,
+                                              normal=contact_normal)
         energy, force = energy + ec, force + fc
     return energy, force, Ke
 

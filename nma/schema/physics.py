@@ -100,6 +100,11 @@ class SolverConfig(Schema):
     max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
                                     doc="heavily damped corrector steps in a row that cut the load step at once "
                                         "(Newton's model does not hold there)")
+    contact_exact_below: float = bounded(_NEWTON.contact_exact_below, "[0, 1]",
+                                         doc="with contact, Newton's correctors use contact's normal stiffness "
+                                             "only (positive semi-definite) until the residual falls below this "
+                                             "fraction of the full load's force scale, then the exact tangent "
+                                             "(0: exact throughout; docs/validity.md)")
     escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
         "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
     warm_start: bool = field(default=_NEWTON.warm_start, metadata={

@@ -29,6 +29,10 @@ class NewtonOptions:
     max_backtracks: int = 40
     damped_step: float = 0.1        # a corrector step shorter than this fraction of the Newton step is heavily damped
     max_damped_steps: int = 3       # heavily damped steps in a row that cut the load step at once
+    # contact's tangent in the corrector iterations whose last residual exceeded this fraction of the full
+    # load's force scale (and in each load step's first): each barrier term's normal stiffness only, a
+    # positive semi-definite matrix; below it, the exact Hessian (quadratic convergence, and the adjoint's)
+    contact_exact_below: float = 1e-3
     # leave saddles: a converged state whose Hessian has negative eigenvalues (PARDISO's inertia; a
     # symmetric path past a buckling point) is perturbed along its unstable mode and Newton goes on to
     # the stable (buckled) equilibrium.  Off by default: the paper's solver, and every reproduction
