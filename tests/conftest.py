@@ -69,6 +69,20 @@ def compose_cfg(*overrides):
         return compose(config_name="config", overrides=list(overrides))
 
 
+def train_in_process(run_dir, *overrides) -> dict:
+    """What `python -m nma.run <overrides>` trains into run_dir, in this process (the same composed,
+    checked config and `nma.run.train`; no Hydra run directory or .hydra/ record): for tests whose
+    subject is the run's artefacts, not its command line.  The final evaluation's record."""
+    from omegaconf import OmegaConf
+
+    from nma.run import train
+    from nma.train.runs import validate
+
+    cfg = compose_cfg(*overrides)
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    return train(validate(cfg), Path(run_dir), OmegaConf.to_container(cfg, resolve=True))
+
+
 def nma_run(run_dir, *overrides, mpi=0, timeout=600):
     cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
     if mpi:

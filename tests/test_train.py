@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import FAST, assert_same_params, copy_run, final_params, nma_run
+from conftest import FAST, assert_same_params, copy_run, final_params, nma_run, train_in_process
 from nma import config
 
 
@@ -76,8 +76,8 @@ def test_hdf5_fields_match_the_solution(translation_run):
                                                       ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
                                                       ("shape_matching", "task.eval_targets=3", "shape_error"),
                                                       ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
-def test_tasks_train_from_the_command_line(tmp_path, task, eval_size, metric):
-    nma_run(tmp_path, f"task={task}", "logger=none", eval_size, *FAST[:-2], "fidelity=fast")
+def test_every_task_trains_and_writes_its_artefacts(tmp_path, task, eval_size, metric):
+    train_in_process(tmp_path, f"task={task}", "logger=none", eval_size, *FAST[:-2], "fidelity=fast")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["metric"] == metric and len(metrics["per_sample"]) == 3
     assert np.all(np.isfinite(metrics["per_sample"]))
@@ -179,9 +179,9 @@ def test_digital_mnist_phases_chain(tmp_path):
 
 def test_fields_are_written_as_asked(tmp_path):
     """trainer.fields: every evaluation into fields/step_<n>/, or none at all (default: the final one)."""
-    nma_run(tmp_path / "all", "logger=none", *FAST, "trainer.eval_every=1", "trainer.fields=all")
+    train_in_process(tmp_path / "all", "logger=none", *FAST, "trainer.eval_every=1", "trainer.fields=all")
     for step in (1, 2):
         assert len(list((tmp_path / "all" / "fields" / f"step_{step:07d}").glob("eval_*.h5"))) == 4
     assert not list((tmp_path / "all" / "fields").glob("eval_*.h5"))
-    nma_run(tmp_path / "none", "logger=none", *FAST, "trainer.fields=none")
+    train_in_process(tmp_path / "none", "logger=none", *FAST, "trainer.fields=none")
     assert (tmp_path / "none" / "metrics.json").exists() and not (tmp_path / "none" / "fields").exists()
