@@ -26,8 +26,8 @@ bench-train:        ## training-step speed per scene: threads vs one, compile, c
 study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/
 	$(PYTHON) experiments/fidelity_study.py
 
-study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.*
-	$(PYTHON) experiments/fidelity_study.py --convergence
+study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.* (STUDY_ARGS="--unpinned --grading 2")
+	$(PYTHON) experiments/fidelity_study.py --convergence $(STUDY_ARGS)
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py

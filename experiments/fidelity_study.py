@@ -86,8 +86,10 @@ def stats(xs) -> dict:
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
-def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
-    """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws."""
+def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False) -> dict:
+    """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws, with
+    knots graded by `grading` (fidelity.grading), and the scene's pinned points removed where `unpinned`
+    (its well-posed variant: the actuated segments hold it)."""
     import jax
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
@@ -102,7 +104,10 @@ def measure(scene: str, setting, draws: int, seed: int = 0) -> dict:
 
     ctrl, quad, rtol = setting
     with PeakMemory() as memory:
-        sim = Simulator(discretise(scene_from_config(config.load("scene", scene)), Fidelity(ctrl, quad)),
+        spec = config.load("scene", scene)
+        if unpinned:
+            spec["pinned"] = []
+        sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading)),
                         "auto", NewtonOptions(rtol=rtol))
         task = TASKS.get(scene)(build(TASK_SCHEMAS[scene], config.load("task", scene)), sim)
         rng = np.random.default_rng(seed)  # the same draws for every setting
@@ -210,15 +215,18 @@ def refinement(levels: list[dict]) -> tuple[dict, dict]:
     return summary, limits
 
 
-def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED) -> dict:
+def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: float = 1.0,
+               unpinned: bool = False) -> dict:
     """The reference check: refinement one level past the reference, the Richardson limit, and the error
-    of the settings runs train at against the reference and against that limit (worst over the draws)."""
-    levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws) for c in ladder]
+    of the settings runs train at against the reference and against that limit (worst over the draws);
+    every level with `grading` and `unpinned` (see measure)."""
+    model = {"grading": grading, "unpinned": unpinned}
+    levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws, **model) for c in ladder]
     for r in levels:
         print(f"{scene}: {r['ctrl_per_patch']}x{r['quad_points']}: {r['dofs']} dofs, forward+gradient "
               f"{r['forward_grad_seconds']['median']:.2f} s", flush=True)
     rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in levels}
-    rows.update({s: measure(scene, (*s, DEFAULT_RTOL), draws) for s in checked})
+    rows.update({s: measure(scene, (*s, DEFAULT_RTOL), draws, **model) for s in checked})
     failed = {f"{c}x{q}": r["failed_draws"] for (c, q), r in rows.items() if r["failed_draws"]}
     if failed:
         raise RuntimeError(f"{scene}: solves failed, no reference check: {failed}")
@@ -235,17 +243,27 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED) -> dict:
                 e.update({f"cosine_vs_{k}": None if b is None else float(np.min(cosine(mine[name], b)))
                           for k, b in against.items()})
             v["error"][f"{c}x{qp}"] = e
-    return {"scene": scene, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
+    return {"scene": scene, **model, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
             "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
             "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
             **result}
 
 
+def variant(scene: str, grading: float = 1.0, unpinned: bool = False) -> str:
+    """The reference check's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`."""
+    return scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
+
+
 def convergence_report(result: dict, out: Path) -> str:
     scene, ladder = result["scene"], [s + 2 for s in result["spans"]]
+    stem = variant(scene, result.get("grading", 1.0), result.get("unpinned", False))
     fmt = lambda v: "-" if v is None else f"{v:.3g}"
     ref = f"{REFERENCE[0]}x{REFERENCE[1]}"
-    lines = [f"# Fidelity study, reference check: {scene}", "",
+    held = ("held by its actuated segments alone (scene.pinned=[])" if result.get("unpinned")
+            else "with the paper's pinned corners")
+    knots = (f"knots graded towards the patch corners (fidelity.grading={result['grading']:g})"
+             if result.get("grading", 1.0) != 1.0 else "uniform knots")
+    lines = [f"# Fidelity study, reference check: {scene}, {held}, {knots}", "",
              f"Successive refinement {' -> '.join(map(str, ladder))} control points per patch at "
              f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} draws.  "
              "Orders from each three successive levels (e(h) = C h^p, h = 1 / knot spans); the limit q* is "
@@ -268,8 +286,8 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
     lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
     text = "\n".join(lines) + "\n"
-    (out / f"{scene}.convergence.json").write_text(json.dumps(result, indent=1))
-    (out / f"{scene}.convergence.md").write_text(text)
+    (out / f"{stem}.convergence.json").write_text(json.dumps(result, indent=1))
+    (out / f"{stem}.convergence.md").write_text(text)
     return text
 
 
@@ -422,8 +440,8 @@ def child(args) -> None:
     from nma.runtime import configure_jax
 
     configure_jax()
-    result = (richardson(args.scenes[0], args.draws) if args.convergence
-              else run_scene(args.scenes[0], args.quick, args.draws))
+    result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned)
+              if args.convergence else run_scene(args.scenes[0], args.quick, args.draws))
     Path(args.result).write_text(json.dumps(result))
 
 
@@ -438,9 +456,17 @@ def main():
     ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
     ap.add_argument("--convergence", action="store_true",
                     help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
+    ap.add_argument("--unpinned", action="store_true",
+                    help="--convergence of each scene's well-posed variant: its pinned corners removed")
+    ap.add_argument("--grading", type=float, default=1.0,
+                    help="--convergence with knots graded towards the patch corners (fidelity.grading)")
+    ap.add_argument("--ladder", type=int, nargs="+", default=list(LADDER),
+                    help=f"--convergence: control points per patch of the refinements, {REFERENCE[0]} among them")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
+        ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
         return child(args)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -453,7 +479,9 @@ def main():
         result_file = args.out / f".{scene}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
-               *(["--convergence"] if args.convergence else [])]
+               *(["--convergence", "--grading", str(args.grading), "--ladder", *map(str, args.ladder)]
+                 if args.convergence else []),
+               *(["--unpinned"] if args.unpinned else [])]
         subprocess.run(cmd, check=True)
         result = json.loads(result_file.read_text())
         result_file.unlink()

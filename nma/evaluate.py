@@ -86,7 +86,9 @@ def evaluate(s: EvaluateConfig) -> dict:
               "largest_sample_change": float(np.max(np.abs(b - a))) if len(a) == len(b) else None}
     at = refined["fidelity"]
     subset = f"_{len(a)}_samples" if s.eval_subset is not None else ""
-    out = run / "evaluate" / f"{at['ctrl_per_patch']}x{at['quad_points']}{'_contact' if at['contact'] else ''}{subset}.json"
+    graded = f"_graded{at['grading']:g}" if at["grading"] != 1.0 else ""
+    out = run / "evaluate" / (f"{at['ctrl_per_patch']}x{at['quad_points']}{graded}{'_contact' if at['contact'] else ''}"
+                              f"{subset}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     result["file"] = str(out)

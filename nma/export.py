@@ -118,7 +118,7 @@ def write_svg(outline: Outline, path: Path) -> Path:
                      viewBox=f"{xmin - pad:.9g} {-ymax - pad:.9g} {w + 2 * pad:.9g} {h + 2 * pad:.9g}")
     commands = []
     for loop in outline.loops:
-        segments = bezier_segments(loop)
+        segments = bezier_segments(loop, outline.grading)
         commands.append("M {:.9g} {:.9g}".format(*segments[0, 0]))
         commands += ["Q {:.9g} {:.9g} {:.9g} {:.9g}".format(*s[1], *s[2]) for s in segments]
         commands.append("Z")
@@ -140,7 +140,7 @@ def write_dxf(outline: Outline, path: Path) -> Path:
     doc.layers.add("PORES", color=1)    # red
     msp = doc.modelspace()
     for k, loop in enumerate(outline.loops):
-        ctrl, knots = loop_spline(loop)
+        ctrl, knots = loop_spline(loop, outline.grading)
         msp.add_open_spline([(x, y, 0.0) for x, y in ctrl], degree=2, knots=knots.tolist(),
                             dxfattribs={"layer": "OUTLINE" if k == 0 else "PORES"})
     doc.saveas(path)
@@ -212,7 +212,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     X = np.asarray(sim.reference_points(geom))
     checker = StateChecker(sim.disc, X)
     mat = material(settings.material.E, settings.material.nu)
-    rest = [scale * p for p in Outline.deformed(checker.loops, X).polylines(8)]
+    rest = [scale * p for p in Outline.deformed(checker.loops, X, sim.disc.fidelity.grading).polylines(8)]
     pointer0 = np.asarray(sim.tracked(X, np.zeros_like(X))["pointer"])
     fig, axes = plt.subplots(1, len(LOAD_CASES), figsize=(4.2 * len(LOAD_CASES), 4.6), sharex=True, sharey=True)
     cases = {}
@@ -229,7 +229,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
         moved = np.asarray(sim.tracked(X, eq.u)["pointer"]) - pointer0
         cases[name] = {"actuation": d.tolist(), "converged": True, "pointer_displacement_mm": (scale * moved).tolist(),
                        "valid": state.valid, "problems": state.problems()}
-        for line in Outline.deformed(checker.loops, X + np.asarray(eq.u)).polylines(8):
+        for line in Outline.deformed(checker.loops, X + np.asarray(eq.u), sim.disc.fidelity.grading).polylines(8):
             ax.plot(*np.vstack([scale * line, scale * line[:1]]).T, color="#c0392b" if not state.valid else "#1f3fbf",
                     lw=1.0)
         ax.annotate("", scale * (pointer0 + moved), scale * pointer0,

@@ -94,6 +94,18 @@ def test_translation_gradients_mixed_formulation():
                       ["radii", "actuation", "material"], h=1e-4)
 
 
+def test_gradients_of_the_well_posed_translation_with_graded_knots():
+    """The paper's translation scene without its pinned corners (its actuated segments hold it: the
+    well-posed variant, docs/fidelity.md) at 8 x 3 with knots graded towards the patch corners."""
+    spec = config.load("scene", "translation")
+    disc = discretise(scene_from_config({**spec, "pinned": []}), Resolution(8, 3, grading=2.5))
+    sim = Simulator(disc, "pardiso", TIGHT)
+    p = sim.init_params()
+    params = {"radii": p["radii"] + 0.05 * jax.random.uniform(jax.random.PRNGKey(1), p["radii"].shape, minval=-1)}
+    check_directional(sim, params, jnp.array([2.0, -1.0]), material(0.07, 0.3), jax.random.PRNGKey(0),
+                      ["radii", "actuation", "material"])
+
+
 def test_corner_gradients_rotation_double():
     sim = tight_simulator("rotation_double")
     p = sim.init_params()

@@ -122,15 +122,22 @@ def test_fidelity_validation():
         Fidelity(5, 0)
     with pytest.raises(ValueError, match="ctrl_per_patch"):
         Fidelity(7, 3)
+    for grading in (0.5, 4.5):
+        with pytest.raises(ValueError, match=r"fidelity.grading .* \[1, 4\]"):
+            Fidelity(8, 3, grading=grading)
 
 
-def test_refined_discretisation_keeps_geometry():
+@pytest.mark.parametrize("grading", [1.0, 3.0])
+def test_refined_discretisation_keeps_geometry(grading):
+    """Refined (uniformly or with graded knots) the geometry is the same map, and graded patches still
+    meet point to point (as many merged points as uniform knots give)."""
     spec = scene_from_config(config.load("scene", "translation"))
-    coarse, fine = discretise(spec, Resolution(5, 3)), discretise(spec, Resolution(8, 3))
+    coarse, fine = discretise(spec, Resolution(5, 3)), discretise(spec, Resolution(8, 3, grading=grading))
     from nma.geometry.sampling import sample_positions
     Xc = coarse.reference_points(coarse.init_params())
     Xf = fine.reference_points(fine.init_params())
     np.testing.assert_allclose(sample_positions(coarse, Xc, 7), sample_positions(fine, Xf, 7), atol=1e-12)
+    assert fine.n_points == discretise(spec, Resolution(8, 3)).n_points
 
 
 @pytest.mark.parametrize("lo, init", [(1e-6, 1e-6), (0.05, 0.999999)])

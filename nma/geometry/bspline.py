@@ -1,4 +1,4 @@
-"""Quadratic B-spline bases on open-uniform knot vectors, sampled once per discretisation.
+"""Quadratic B-spline bases on open knot vectors, uniform or graded, sampled once per discretisation.
 
 Everything here is plain numpy: the tables are constants of a scene's discretisation, computed
 once and closed over by the jitted mechanics.  scipy's BSpline evaluates the basis (no
@@ -16,33 +16,68 @@ DEGREE = 2
 DESIGN_CTRL = 5  # the design net of every patch: 5 x 5 control points, 3 x 3 knot spans
 
 
-def open_uniform_knots(n_ctrl: int, degree: int = DEGREE) -> np.ndarray:
-    spans = n_ctrl - degree
-    inner = np.linspace(0.0, 1.0, spans + 1)
-    return np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+@lru_cache(maxsize=None)
+def span_breaks(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
+    """The distinct knots 0 = b_0 < ... < b_S = 1 of a patch side with n_ctrl control points (S = n_ctrl - 2
+    knot spans).  grading 1: uniform.  grading g > 1 (n_ctrl = 3k + 2): the design knots 1/3 and 2/3 stay,
+    the middle third keeps its k uniform spans, and in the outer thirds the knots go as (i / k)^g from the
+    patch's ends, so elements shrink towards every patch corner (where the ends of supports and actuated
+    segments sit, the stress singularities that a uniform mesh resolves at a low order) and are symmetric,
+    so that patches of either orientation still meet knot to knot."""
+    spans = n_ctrl - DEGREE
+    if grading == 1.0:
+        return np.linspace(0.0, 1.0, spans + 1)
+    if spans % 3:
+        raise ValueError(f"graded knots need 3k + 2 control points (one knot per design span), got {n_ctrl}")
+    k = spans // 3
+    outer = (np.arange(k + 1) / k) ** grading / 3.0  # 0 .. 1/3, finest at 0
+    middle = 1.0 / 3.0 + np.arange(1, k) / (3.0 * k)
+    return np.concatenate([outer, middle, 1.0 - outer[::-1]])
 
 
-def basis_matrix(x: np.ndarray, n_ctrl: int, derivative: int = 0) -> np.ndarray:
-    """B[k, i] = N_i^(derivative)(x_k) for the open-uniform quadratic basis with n_ctrl functions."""
-    spline = BSpline(open_uniform_knots(n_ctrl), np.eye(n_ctrl), DEGREE, extrapolate=False)
+def knot_vector(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
+    """The open knot vector (n_ctrl + 3,): span_breaks with the end knots repeated."""
+    return np.concatenate([np.zeros(DEGREE), span_breaks(n_ctrl, grading), np.ones(DEGREE)])
+
+
+def span_widths(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
+    """(S,) the knot spans' lengths in patch coordinates."""
+    if grading == 1.0:
+        return np.full(n_ctrl - DEGREE, 1.0 / (n_ctrl - DEGREE))
+    return np.diff(span_breaks(n_ctrl, grading))
+
+
+def span_points(n_ctrl: int, local, grading: float = 1.0) -> np.ndarray:
+    """(S, len(local)) patch coordinates of the points at `local` in [0, 1] of each knot span."""
+    local = np.asarray(local, float)[None, :]
+    if grading == 1.0:
+        return (np.arange(n_ctrl - DEGREE)[:, None] + local) * (1.0 / (n_ctrl - DEGREE))
+    return span_breaks(n_ctrl, grading)[:-1, None] + local * span_widths(n_ctrl, grading)[:, None]
+
+
+def basis_matrix(x: np.ndarray, n_ctrl: int, derivative: int = 0, grading: float = 1.0) -> np.ndarray:
+    """B[k, i] = N_i^(derivative)(x_k) for the open quadratic basis with n_ctrl functions (knots: span_breaks)."""
+    spline = BSpline(knot_vector(n_ctrl, grading), np.eye(n_ctrl), DEGREE, extrapolate=False)
     if derivative:
         spline = spline.derivative(derivative)
     out = spline(np.clip(np.asarray(x, float), 0.0, 1.0 - 1e-14))
     return np.nan_to_num(out)
 
 
-def greville(n_ctrl: int) -> np.ndarray:
-    t = open_uniform_knots(n_ctrl)
+def greville(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
+    t = knot_vector(n_ctrl, grading)
     return np.array([t[i + 1:i + 1 + DEGREE].mean() for i in range(n_ctrl)])
 
 
-def refinement_operator(n_ctrl: int) -> np.ndarray:
+@lru_cache(maxsize=None)
+def refinement_operator(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
     """R (n_ctrl, 5): h-refinement (knot insertion) of the 5-point design net, exact for any net.
 
     The design space is a subspace of the analysis space because the analysis knots nest the design
-    knots, so solving B_fine R = B_coarse at n_ctrl distinct points gives the exact operator."""
-    x = greville(n_ctrl)
-    fine = basis_matrix(x, n_ctrl)
+    knots (1/3 and 2/3 are knots at every grading), so solving B_fine R = B_coarse at n_ctrl distinct
+    points gives the exact operator."""
+    x = greville(n_ctrl, grading)
+    fine = basis_matrix(x, n_ctrl, grading=grading)
     coarse = basis_matrix(x, DESIGN_CTRL)
     R = np.linalg.solve(fine, coarse)
     R[np.abs(R) < 1e-14] = 0.0
@@ -55,7 +90,7 @@ def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=None)
-def element_tables(n_ctrl: int, quad: int):
+def element_tables(n_ctrl: int, quad: int, grading: float = 1.0):
     """Bezier-element tables of one patch at the quad x quad Gauss points of each knot span: every span
     is an element with 9 basis functions.
 
@@ -65,7 +100,7 @@ def element_tables(n_ctrl: int, quad: int):
       grads       (S*S, Q, 9, 2) dN/dxi, dN/deta (parametric, patch coordinates in [0, 1]^2)
       weights     (S*S, Q)   Gauss weights times the span area
     """
-    return _tables(n_ctrl, *gauss_legendre_01(quad))
+    return _tables(n_ctrl, grading, *gauss_legendre_01(quad))
 
 
 CHECK_POINTS = np.linspace(0.0, 1.0, 4)  # per span and direction: where det F of a quadratic map is a
@@ -73,23 +108,24 @@ CHECK_POINTS = np.linspace(0.0, 1.0, 4)  # per span and direction: where det F o
 
 
 @lru_cache(maxsize=None)
-def check_tables(n_ctrl: int):
+def check_tables(n_ctrl: int, grading: float = 1.0):
     """element_tables at the 4 x 4 CHECK_POINTS of each element, each weighted by a 16th of its span area."""
-    return _tables(n_ctrl, CHECK_POINTS, np.full(len(CHECK_POINTS), 1.0 / len(CHECK_POINTS)))
+    return _tables(n_ctrl, grading, CHECK_POINTS, np.full(len(CHECK_POINTS), 1.0 / len(CHECK_POINTS)))
 
 
-def _tables(n_ctrl: int, points: np.ndarray, point_weights: np.ndarray):
+def _tables(n_ctrl: int, grading: float, points: np.ndarray, point_weights: np.ndarray):
     """The tables of element_tables at the tensor grid of 1D `points` in [0, 1] of each span."""
     spans = n_ctrl - DEGREE
-    h = 1.0 / spans
+    at, h = span_points(n_ctrl, points, grading), span_widths(n_ctrl, grading)
     k = len(points)
+    basis = lambda x, d=0: basis_matrix(x, n_ctrl, d, grading)
     local, vals, grads, wts = [], [], [], []
     for si in range(spans):
-        xi = (si + points) * h
-        Bx, dBx = basis_matrix(xi, n_ctrl)[:, si:si + 3], basis_matrix(xi, n_ctrl, 1)[:, si:si + 3]
+        xi = at[si]
+        Bx, dBx = basis(xi)[:, si:si + 3], basis(xi, 1)[:, si:si + 3]
         for sj in range(spans):
-            eta = (sj + points) * h
-            By, dBy = basis_matrix(eta, n_ctrl)[:, sj:sj + 3], basis_matrix(eta, n_ctrl, 1)[:, sj:sj + 3]
+            eta = at[sj]
+            By, dBy = basis(eta)[:, sj:sj + 3], basis(eta, 1)[:, sj:sj + 3]
             # point (p, q) -> row p * k + q ; function (a, b) -> column a * 3 + b
             v = np.einsum("pa,qb->pqab", Bx, By).reshape(k * k, 9)
             dxi = np.einsum("pa,qb->pqab", dBx, By).reshape(k * k, 9)
@@ -97,5 +133,5 @@ def _tables(n_ctrl: int, points: np.ndarray, point_weights: np.ndarray):
             local.append([(si + a) * n_ctrl + (sj + b) for a in range(3) for b in range(3)])
             vals.append(v)
             grads.append(np.stack([dxi, deta], axis=-1))
-            wts.append(np.outer(point_weights, point_weights).reshape(-1) * h * h)
+            wts.append(np.outer(point_weights, point_weights).reshape(-1) * h[si] * h[sj])
     return (np.array(local), np.array(vals), np.array(grads), np.array(wts))

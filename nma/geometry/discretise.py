@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
-                      refinement_operator)
+                      refinement_operator, span_points, span_widths)
 from ..errors import ConfigError
 from ..mechanics.options import FORMULATIONS
 from .design import make_design
@@ -65,7 +65,7 @@ class Discretisation:
 
     def analysis_nets(self, params) -> jnp.ndarray:
         """(P, m, m, 2) analysis control nets: the design nets refined by knot insertion (exact)."""
-        R = jnp.asarray(refinement_operator(self.fidelity.ctrl_per_patch))
+        R = jnp.asarray(refinement_operator(self.fidelity.ctrl_per_patch, self.fidelity.grading))
         return jnp.einsum("ia,pabd,jb->pijd", R, self.design.nets(params), R)
 
     def reference_points(self, params) -> jnp.ndarray:
@@ -82,8 +82,8 @@ class Discretisation:
     def material_points(self, patches: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n, m*m) point indices and basis weights of the material points at parametric coordinates
         xi (n, 2) of the given patches: positions are einsum("nk,nkd->nd", w, points[idx])."""
-        m = self.fidelity.ctrl_per_patch
-        B0, B1 = basis_matrix(xi[:, 0], m), basis_matrix(xi[:, 1], m)
+        m, g = self.fidelity.ctrl_per_patch, self.fidelity.grading
+        B0, B1 = basis_matrix(xi[:, 0], m, grading=g), basis_matrix(xi[:, 1], m, grading=g)
         w = np.einsum("ni,nj->nij", B0, B1).reshape(len(xi), m * m)
         return self.patch_points[np.asarray(patches)], w
 
@@ -111,13 +111,12 @@ def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
     return np.linalg.norm(pts - (a + t[:, None] * ab), axis=1) < tol
 
 
-def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float):
+def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float, grading: float):
     """Consistent nodal forces of a dead traction on every patch edge lying on `seg`."""
-    spans = n_ctrl - 2
     gx, gw = gauss_legendre_01(quad)
-    s = ((np.arange(spans)[:, None] + gx[None, :]) / spans).ravel()
-    w = np.tile(gw, spans) / spans
-    N, dN = basis_matrix(s, n_ctrl), basis_matrix(s, n_ctrl, 1)
+    s = span_points(n_ctrl, gx, grading).ravel()
+    w = (gw[None, :] * span_widths(n_ctrl, grading)[:, None]).ravel()
+    N, dN = basis_matrix(s, n_ctrl, grading=grading), basis_matrix(s, n_ctrl, 1, grading)
     forces = []
     for p, net in enumerate(nets):
         edges = {"xi0": (net[0, :], (p, np.s_[0, :])), "xi1": (net[-1, :], (p, np.s_[-1, :])),
@@ -131,17 +130,18 @@ def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol:
     return forces
 
 
-def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
+def _locate(nets: np.ndarray, target: np.ndarray, tol: float, grading: float) -> tuple[int, np.ndarray]:
     """Patch and parametric coordinates of a reference point (Newton inversion of each patch map)."""
     m = nets.shape[1]
+    basis = lambda x, d=0: basis_matrix(x, m, d, grading)[0]
     lo, hi = nets.min(axis=(1, 2)) - tol, nets.max(axis=(1, 2)) + tol
     candidates = np.flatnonzero(np.all((lo <= target) & (target <= hi), axis=1))  # convex hull property
     for p in candidates:
         net = nets[p]
         xi = np.array([0.5, 0.5])
         for _ in range(30):
-            B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
-            dB = [basis_matrix(xi[k:k + 1], m, 1)[0] for k in range(2)]
+            B = [basis(xi[k:k + 1]) for k in range(2)]
+            dB = [basis(xi[k:k + 1], 1) for k in range(2)]
             x = np.einsum("i,j,ijd->d", B[0], B[1], net)
             J = np.stack([np.einsum("i,j,ijd->d", dB[0], B[1], net),
                           np.einsum("i,j,ijd->d", B[0], dB[1], net)], axis=1)
@@ -149,7 +149,7 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float) -> tuple[int, np.n
             xi = np.clip(xi + step, 0.0, 1.0)
             if np.linalg.norm(step) < 1e-14:
                 break
-        B = [basis_matrix(xi[k:k + 1], m)[0] for k in range(2)]
+        B = [basis(xi[k:k + 1]) for k in range(2)]
         if np.linalg.norm(np.einsum("i,j,ijd->d", B[0], B[1], net) - target) < tol:
             return int(p), xi
     return -1, np.zeros(2)
@@ -223,8 +223,8 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
         raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
     fidelity = Resolution.of(fidelity)
     design = make_design(spec)
-    m, quad = fidelity.ctrl_per_patch, fidelity.quad_points
-    R = refinement_operator(m)
+    m, quad, g = fidelity.ctrl_per_patch, fidelity.quad_points, fidelity.grading
+    R = refinement_operator(m, g)
     # topology from a canonical design (mid radii, corners at rest): which points coincide must not
     # depend on the initial radii, or a radius at a bound would merge a pore's sides into one point
     canonical = np.asarray(design.nets(design.topology_params()))
@@ -233,25 +233,25 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
     points, representative, patch_points = _merge_points(nets, tol)
     n_points = len(points)
 
-    local, values, grads, weights = element_tables(m, quad)
-    _, _, check_grads, check_weights = check_tables(m)
+    local, values, grads, weights = element_tables(m, quad, g)
+    _, _, check_grads, check_weights = check_tables(m, g)
     elem_points = patch_points[:, local]  # (P, S2, 9)
     dirichlet, A, group_points = _dirichlet(spec, points, tol)
     free = np.setdiff1d(np.arange(2 * n_points), dirichlet)
 
     f_ext = np.zeros(2 * n_points)
     for tr in getattr(spec, "tractions", ()):
-        for p, idx, f in _edge_traction(nets, tr.segment, tr.traction, m, quad, tol):
+        for p, idx, f in _edge_traction(nets, tr.segment, tr.traction, m, quad, tol, g):
             pts = patch_points[p][idx.ravel()]
             np.add.at(f_ext, 2 * pts, f[:, 0])
             np.add.at(f_ext, 2 * pts + 1, f[:, 1])
 
     tracked = {}
     for name, xy in spec.tracked.items():
-        patch, xi = _locate(nets, np.asarray(xy, float), tol)
+        patch, xi = _locate(nets, np.asarray(xy, float), tol, g)
         if patch < 0:
             raise ConfigError(f"scene {spec.name}: tracked point {name} at {xy} lies in no patch")
-        w = np.einsum("i,j->ij", basis_matrix(xi[:1], m)[0], basis_matrix(xi[1:], m)[0]).ravel()
+        w = np.einsum("i,j->ij", basis_matrix(xi[:1], m, grading=g)[0], basis_matrix(xi[1:], m, grading=g)[0]).ravel()
         keep = w > 1e-15
         tracked[name] = (patch_points[patch][keep], w[keep])
 
@@ -266,7 +266,7 @@ def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
     from ..mechanics.contact import build
     from .outline import oriented_loops
 
-    return replace(disc, contact=build(oriented_loops(disc, points)[1:], points, contact))
+    return replace(disc, contact=build(oriented_loops(disc, points)[1:], points, contact, g))
 
 
 __all__ = ["Resolution", "Discretisation", "discretise", "DESIGN_CTRL"]

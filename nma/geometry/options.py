@@ -7,17 +7,24 @@ from dataclasses import dataclass, fields
 from ..errors import ConfigError
 
 
+GRADING_MAX = 4.0  # past it the outer thirds' largest span is over 4x the uniform one's
+
+
 @dataclass(frozen=True)
 class Resolution:
     """How finely a scene is discretised (nma.geometry.discretise)."""
     ctrl_per_patch: int = 5          # control points per patch side: 3k + 2, the design net refined
     quad_points: int = 5             # Gauss points per knot span and direction
     inversion_barrier: float = 0.0   # det F below which the barrier at the 4 x 4 check points acts; 0: off
+    grading: float = 1.0             # knot spacing towards the patch corners (bspline.span_breaks); 1: uniform
 
     def __post_init__(self):
         if self.ctrl_per_patch < 5 or (self.ctrl_per_patch - 2) % 3:
             raise ConfigError(f"fidelity.ctrl_per_patch must be 3k + 2 with k >= 1 (5, 8, 11, ...: one knot per "
                               f"design span), got {self.ctrl_per_patch}")
+        if not 1.0 <= self.grading <= GRADING_MAX:
+            raise ConfigError(f"fidelity.grading must be in [1, {GRADING_MAX:g}] (1: uniform knots), "
+                              f"got {self.grading}")
         if self.quad_points < 1:
             raise ConfigError(f"fidelity.quad_points must be at least 1, got {self.quad_points}")
 

@@ -3,9 +3,9 @@
 A scene is a union of m x m quadratic B-spline patches (m = 5: the design nets; any m: an analysis
 discretisation, reference or deformed); an edge that belongs to one patch only lies on the boundary.
 Chained at their end points, the boundary edges form closed loops: the outer boundary and one loop per
-pore.  Each edge is a quadratic B-spline on m - 2 uniform spans (open knots), so a loop is exactly one
-quadratic B-spline with double knots where edges join (C0 there), and every span is exactly one
-quadratic Bezier segment.
+pore.  Each edge is a quadratic B-spline on m - 2 spans (open knots, uniform or graded: the
+discretisation's `fidelity.grading`), so a loop is exactly one quadratic B-spline with double knots where
+edges join (C0 there), and every span is exactly one quadratic Bezier segment.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bspline import basis_matrix, gauss_legendre_01
+from .bspline import basis_matrix, gauss_legendre_01, span_breaks, span_points, span_widths
 
 if TYPE_CHECKING:  # discretise builds the contact model from the loops found here
     from .discretise import Discretisation
@@ -72,24 +72,26 @@ def chain(edges: list[np.ndarray]) -> list[list[np.ndarray]]:
 @dataclass(frozen=True)
 class Outline:
     """Closed boundary loops of a design, each (n_edges, m, 2) edge control polygons, chained.
-    loops[0] is the outer boundary (counter-clockwise); the others are pores (clockwise)."""
+    loops[0] is the outer boundary (counter-clockwise); the others are pores (clockwise).  `grading`: the
+    edges' knots (bspline.span_breaks)."""
     loops: tuple[np.ndarray, ...]
+    grading: float = 1.0
 
     @classmethod
     def of(cls, disc: Discretisation, points) -> "Outline":
         """The outline of the control points `points` (n_points, 2) of `disc`."""
-        return cls.deformed(oriented_loops(disc, points), points)
+        return cls.deformed(oriented_loops(disc, points), points, disc.fidelity.grading)
 
     @classmethod
-    def deformed(cls, loops: list[np.ndarray], points) -> "Outline":
+    def deformed(cls, loops: list[np.ndarray], points, grading: float = 1.0) -> "Outline":
         """The outline at control points `points` (a deformed state) of loops of point indices that
         `oriented_loops` ordered and oriented on the reference: the outer boundary stays loops[0] and a
         pore stays a pore even where the deformation turned it inside out."""
         points = np.asarray(points, float)
-        return cls(tuple(points[loop] for loop in loops))
+        return cls(tuple(points[loop] for loop in loops), grading)
 
     def scaled(self, factor: float) -> "Outline":
-        return Outline(tuple(lp * factor for lp in self.loops))
+        return Outline(tuple(lp * factor for lp in self.loops), self.grading)
 
     @property
     def outer(self) -> np.ndarray:
@@ -101,7 +103,7 @@ class Outline:
 
     def polylines(self, per_span: int = 16) -> list[np.ndarray]:
         """Each loop through `per_span` points per knot span (its edges' joins once)."""
-        return [sample_loop(lp, per_span) for lp in self.loops]
+        return [sample_loop(lp, per_span, self.grading) for lp in self.loops]
 
     def polygon(self, per_span: int = 16):
         """A shapely Polygon (outer boundary with the pores as holes) through `per_span` points per span."""
@@ -112,7 +114,7 @@ class Outline:
 
     def enclosed_areas(self) -> np.ndarray:
         """Signed area inside each loop, exactly (Green's theorem; the integrand is a cubic per span)."""
-        return np.asarray([float(enclosed_area(loop)) for loop in self.loops])
+        return np.asarray([float(enclosed_area(loop, self.grading)) for loop in self.loops])
 
     @property
     def area(self) -> float:
@@ -131,7 +133,7 @@ def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
     the pores clockwise (the material on the left), at control points `points` (the reference)."""
     points = np.asarray(points, float)
     loops = [np.stack(loop) for loop in chain(boundary_edges(disc))]
-    areas = np.asarray([float(enclosed_area(points[loop])) for loop in loops])
+    areas = np.asarray([float(enclosed_area(points[loop], disc.fidelity.grading)) for loop in loops])
     outer = int(np.argmax(np.abs(areas)))
     order = [outer] + [k for k in range(len(loops)) if k != outer]
     oriented = []
@@ -143,54 +145,60 @@ def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
 
 
 @lru_cache(maxsize=None)
-def _area_tables(m: int):
+def _area_tables(m: int, grading: float = 1.0):
     """Basis, derivative and weights at 2 Gauss points per span of an edge with m control points."""
-    n = m - 2
     g, w = gauss_legendre_01(2)
-    t = (np.arange(n)[:, None] + g[None]).ravel() / n
-    return basis_matrix(t, m), basis_matrix(t, m, derivative=1), np.tile(w, n) / n
+    t = span_points(m, g, grading).ravel()
+    return (basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading),
+            (w[None, :] * span_widths(m, grading)[:, None]).ravel())
 
 
 @lru_cache(maxsize=None)
-def loop_basis(m: int, per_span: int) -> np.ndarray:
+def loop_basis(m: int, per_span: int, grading: float = 1.0) -> np.ndarray:
     """B-spline values (n_spans * per_span, m) at `per_span` even steps through each knot span of an edge
     with m control points, the end excluded (it is the next edge's start)."""
     n = m - 2
-    return basis_matrix(np.arange(n * per_span) / (n * per_span), m)
+    if grading == 1.0:
+        return basis_matrix(np.arange(n * per_span) / (n * per_span), m)
+    return basis_matrix(span_points(m, np.arange(per_span) / per_span, grading).ravel(), m, grading=grading)
 
 
-def enclosed_area(loop: np.ndarray):
+def enclosed_area(loop: np.ndarray, grading: float = 1.0):
     """Signed area inside a loop (..., n_edges, m, 2), exactly (Green's theorem; a cubic per span)."""
-    B, dB, w = _area_tables(loop.shape[-2])
+    B, dB, w = _area_tables(loop.shape[-2], grading)
     x, dx = np.einsum("nk,...ekd->...end", B, loop), np.einsum("nk,...ekd->...end", dB, loop)
     return 0.5 * np.sum((x[..., 0] * dx[..., 1] - x[..., 1] * dx[..., 0]) * w, axis=(-2, -1))
 
 
-def sample_loop(loop: np.ndarray, per_span: int) -> np.ndarray:
+def sample_loop(loop: np.ndarray, per_span: int, grading: float = 1.0) -> np.ndarray:
     """Points along a loop (..., n_edges, m, 2), `per_span` per knot span, each join once:
     (..., n_edges * spans * per_span, 2)."""
-    points = np.einsum("nk,...ekd->...end", loop_basis(loop.shape[-2], per_span), loop)
+    points = np.einsum("nk,...ekd->...end", loop_basis(loop.shape[-2], per_span, grading), loop)
     return points.reshape(*loop.shape[:-3], -1, 2)
 
 
-def bezier_segments(loop: np.ndarray) -> np.ndarray:
+def bezier_segments(loop: np.ndarray, grading: float = 1.0) -> np.ndarray:
     """The loop as quadratic Bezier segments (n_edges * spans, 3, 2), exactly: per span [a, b] the
     end points C(a), C(b) and the control point 2 C(mid) - (C(a) + C(b)) / 2."""
-    n = spans(loop)
-    a = np.arange(n) / n
-    t = np.stack([a, a + 0.5 / n, a + 1.0 / n], axis=1).ravel()
-    C = np.einsum("nk,ekd->end", basis_matrix(t, loop.shape[1]), loop).reshape(len(loop), n, 3, 2)
+    n, m = spans(loop), loop.shape[1]
+    if grading == 1.0:
+        a = np.arange(n) / n
+        t = np.stack([a, a + 0.5 / n, a + 1.0 / n], axis=1).ravel()
+    else:
+        t = span_points(m, [0.0, 0.5, 1.0], grading).ravel()
+    C = np.einsum("nk,ekd->end", basis_matrix(t, m, grading=grading), loop).reshape(len(loop), n, 3, 2)
     ends = C[:, :, [0, 2]]
     ctrl = 2.0 * C[:, :, 1] - 0.5 * (ends[:, :, 0] + ends[:, :, 1])
     return np.stack([ends[:, :, 0], ctrl, ends[:, :, 1]], axis=2).reshape(-1, 3, 2)
 
 
-def loop_spline(loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def loop_spline(loop: np.ndarray, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """One quadratic B-spline through the whole loop: control points ((m - 1) n + 1, 2) and knots
     ((m - 1) n + 4,), with double knots where edges join, so that it equals the edges exactly."""
     n, per = len(loop), spans(loop)
     ctrl = np.concatenate([loop[0]] + [e[1:] for e in loop[1:]])
-    inner = [k + s / per for k in range(n) for s in range(1, per)]
+    breaks = span_breaks(loop.shape[1], grading)
+    inner = [k + (s / per if grading == 1.0 else breaks[s]) for k in range(n) for s in range(1, per)]
     joins = [float(k) for k in range(1, n) for _ in range(2)]
     knots = np.sort(np.concatenate([[0.0] * 3, inner, joins, [float(n)] * 3]))
     return ctrl, knots

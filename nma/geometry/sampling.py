@@ -15,10 +15,10 @@ from .discretise import Discretisation
 
 
 @lru_cache(maxsize=None)
-def grid_basis(n_ctrl: int, samples: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def grid_basis(n_ctrl: int, samples: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tensor basis (s*s, n*n) and its two parametric derivatives at a uniform s x s grid in [0, 1]^2."""
     t = np.linspace(0.0, 1.0, samples)
-    B, dB = basis_matrix(t, n_ctrl), basis_matrix(t, n_ctrl, 1)
+    B, dB = basis_matrix(t, n_ctrl, grading=grading), basis_matrix(t, n_ctrl, 1, grading)
     kron = lambda a, b: np.einsum("pi,qj->pqij", a, b).reshape(samples * samples, n_ctrl * n_ctrl)
     return kron(B, B), kron(dB, B), kron(B, dB)
 
@@ -30,13 +30,13 @@ def patch_nets(disc: Discretisation, values: jnp.ndarray) -> jnp.ndarray:
 
 def sample_positions(disc: Discretisation, points: jnp.ndarray, samples: int) -> jnp.ndarray:
     """(P, s*s, 2) positions of the material points for control points `points` (X or X + u)."""
-    B, _, _ = grid_basis(disc.fidelity.ctrl_per_patch, samples)
+    B, _, _ = grid_basis(disc.fidelity.ctrl_per_patch, samples, disc.fidelity.grading)
     return jnp.einsum("sk,pkd->psd", B, patch_nets(disc, points))
 
 
 def sample_jacobian(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray, samples: int) -> jnp.ndarray:
     """(P, s*s) det F of the deformation at the material points."""
-    _, dxi, deta = grid_basis(disc.fidelity.ctrl_per_patch, samples)
+    _, dxi, deta = grid_basis(disc.fidelity.ctrl_per_patch, samples, disc.fidelity.grading)
     grad = lambda v: jnp.stack([jnp.einsum("sk,pkd->psd", D, patch_nets(disc, v)) for D in (dxi, deta)], -1)
     dX, dx = grad(X), grad(X + u)  # (P, s*s, 2, 2): [component, parametric direction]
     det = lambda A: A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]

@@ -24,7 +24,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from .bspline import CHECK_POINTS, basis_matrix
+from .bspline import CHECK_POINTS, basis_matrix, span_points
 from .discretise import Discretisation
 from .outline import enclosed_area, oriented_loops, sample_loop
 
@@ -53,20 +53,24 @@ def _halves() -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=None)
-def _element_bases(m: int) -> tuple[np.ndarray, np.ndarray]:
+def _element_bases(m: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Basis (S*4, m) and derivative at the 4 equally spaced points (ends included) of every knot span."""
     n_spans = m - 2
-    t = ((np.arange(n_spans)[:, None] + _NODES[None]) / n_spans).ravel()
+    if grading == 1.0:
+        t = ((np.arange(n_spans)[:, None] + _NODES[None]) / n_spans).ravel()
+    else:
+        t = span_points(m, _NODES, grading).ravel()
     # the right end of a span is the left limit there: inside a patch the basis is C1, so either side
     t = np.minimum(t, 1.0 - 1e-12)
-    return basis_matrix(t, m), basis_matrix(t, m, 1)
+    return basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading)
 
 
 def _element_centres(disc: Discretisation, points: np.ndarray) -> np.ndarray:
     """(P * S * S, 2) the centre (parametric midpoint) of every Bezier element, in patch order."""
-    m = disc.fidelity.ctrl_per_patch
+    m, g = disc.fidelity.ctrl_per_patch, disc.fidelity.grading
     S = m - 2
-    B = basis_matrix(np.minimum((np.arange(S) + 0.5) / S, 1.0 - 1e-12), m)
+    mid = (np.arange(S) + 0.5) / S if g == 1.0 else span_points(m, [0.5], g).ravel()
+    B = basis_matrix(np.minimum(mid, 1.0 - 1e-12), m, grading=g)
     nets = points[disc.patch_points].reshape(disc.n_patches, m, m, 2)
     return np.einsum("ai,bj,pijd->pabd", B, B, nets).reshape(-1, 2)
 
@@ -74,7 +78,7 @@ def _element_centres(disc: Discretisation, points: np.ndarray) -> np.ndarray:
 def _jacobian_dets(disc: Discretisation, points: np.ndarray) -> np.ndarray:
     """det(dx/dxi) at the 4 x 4 points of every Bezier element: (..., P, S, S, 4, 4)."""
     m = disc.fidelity.ctrl_per_patch
-    B, dB = _element_bases(m)
+    B, dB = _element_bases(m, disc.fidelity.grading)
     nets = points[..., disc.patch_points, :].reshape(*points.shape[:-2], disc.n_patches, m, m, 2)
     dxi = np.einsum("ai,bj,...pijd->...pabd", dB, B, nets)
     deta = np.einsum("ai,bj,...pijd->...pabd", B, dB, nets)
@@ -130,11 +134,11 @@ class StateChecker:
         self.margin = 0.5 * float(np.median([np.ptp(p, axis=0).max() for p in pores])) if pores else 0.0
 
     def _polylines(self, x: np.ndarray) -> list[np.ndarray]:
-        return [sample_loop(x[loop], self.per_span) for loop in self.loops]
+        return [sample_loop(x[loop], self.per_span, self.disc.fidelity.grading) for loop in self.loops]
 
     def _areas(self, x: np.ndarray) -> np.ndarray:
         """Enclosed areas (..., loops) of states x (..., n_points, 2)."""
-        return np.stack([enclosed_area(x[..., loop, :]) for loop in self.loops], axis=-1)
+        return np.stack([enclosed_area(x[..., loop, :], self.disc.fidelity.grading) for loop in self.loops], axis=-1)
 
     @cached_property
     def resolution(self) -> str:
@@ -205,7 +209,7 @@ class StateChecker:
         import shapely
 
         n, R = len(x), len(self.loops)
-        lines = [sample_loop(x[:, loop], self.per_span) for loop in self.loops]
+        lines = [sample_loop(x[:, loop], self.per_span, self.disc.fidelity.grading) for loop in self.loops]
         lines = [np.concatenate([p, p[:, :1]], axis=1) for p in lines]  # closed
         sizes = np.array([p.shape[1] for p in lines])
         coords = np.concatenate(lines, axis=1).reshape(-1, 2)  # state-major, then loop

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
-from ..geometry.bspline import basis_matrix
+from ..geometry.bspline import basis_matrix, span_points
 from .barrier import ipc
 from .material import det_roots
 from .options import ContactSettings
@@ -76,7 +76,8 @@ class ContactModel:
         return np.concatenate([pts, np.repeat(pts[:, -1:], 3, axis=1)], axis=1)
 
 
-def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings) -> ContactModel | None:
+def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings,
+          grading: float = 1.0) -> ContactModel | None:
     """The contact model of the pore loops (each (n_edges, m) point indices, chained; nma.geometry.outline)
     at the reference control points `points`; None for a scene without pores (or with pores too coarse to
     have a pair of segments that are not neighbours)."""
@@ -85,13 +86,14 @@ def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings
     m = loops[0].shape[1]
     spans, k = m - 2, settings.per_span
     s = np.arange(k + 1) / k
+    at = (np.arange(spans)[:, None] + s) / spans if grading == 1.0 else span_points(m, s, grading)
     segments, basis, pairs, start, end = [], [], [], [], []
     for loop in loops:
         first = len(segments)
         for edge in loop:
             for j in range(spans):
                 segments.append(edge[j:j + 3])
-                basis.append(basis_matrix((j + s) / spans, m)[:, j:j + 3])
+                basis.append(basis_matrix(at[j], m, grading=grading)[:, j:j + 3])
         n = len(segments) - first
         start += [first] * n
         end += [first + n] * n

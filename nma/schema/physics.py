@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import ClassVar, Optional
 
-from ..geometry.options import Resolution
+from ..geometry.options import GRADING_MAX, Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
 from ..solver.options import WARM_START_NEEDS_HOST, NewtonOptions
 from ..settings import Schema, bounded, choice
@@ -37,6 +37,9 @@ class Fidelity(Schema):
     inversion_barrier: float = bounded(_RESOLUTION.inversion_barrier, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
                                        "every element, corners included, where the Gauss points do not see, and "
                                        "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
+    grading: float = bounded(_RESOLUTION.grading, f"[1, {GRADING_MAX:g}]", doc="knots graded towards every patch "
+                             "corner as (i/k)^grading in each side's outer thirds, where supports and actuated "
+                             "segments end (stress singularities); 1: uniform (docs/fidelity.md)")
 
     def check(self):
         Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)

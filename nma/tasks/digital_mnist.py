@@ -73,7 +73,7 @@ class ColourDisplay:
         m = disc.fidelity.ctrl_per_patch
         t = np.linspace(1e-4, 1.0 - 1e-4, colour_samples)
         kron = lambda B: np.einsum("pi,qj->pqij", B, B).reshape(len(t) ** 2, -1)
-        self.geometry_basis = jnp.asarray(kron(basis_matrix(t, m)))           # (s^2, m^2)
+        self.geometry_basis = jnp.asarray(kron(basis_matrix(t, m, grading=disc.fidelity.grading)))  # (s^2, m^2)
         self.colour_basis = jnp.asarray(kron(basis_matrix(t, DESIGN_CTRL)))    # (s^2, 25)
         self.patch_points = jnp.asarray(disc.patch_points)
         self.windows = jnp.asarray(window_points(windows, window_samples))    # (W, k, 2)

@@ -60,10 +60,10 @@ def descriptors(cfg: SpecConfig) -> np.ndarray | None:
     return rows
 
 
-def wall_points(wall: jnp.ndarray) -> jnp.ndarray:
+def wall_points(wall: jnp.ndarray, grading: float = 1.0) -> jnp.ndarray:
     """The points of a pore's wall, its control points (n_edges, m, 2), at PER_SPAN even steps per span
     (as outline.sample_loop, traceable)."""
-    return jnp.einsum("nk,ekd->end", loop_basis(wall.shape[1], PER_SPAN), wall).reshape(-1, 2)
+    return jnp.einsum("nk,ekd->end", loop_basis(wall.shape[1], PER_SPAN, grading), wall).reshape(-1, 2)
 
 
 def wall_area(points: jnp.ndarray) -> jnp.ndarray:
@@ -130,7 +130,7 @@ class SpecTask(Task):
             f = jax.grad(lambda v: strain_energy(sim.disc, quadrature(sim.disc, X), v, mat))(u)
             return jnp.reshape(f.reshape(-1)[sim.disc.dirichlet_dofs] @ self.actuation, (1,))
         if self.outline:
-            return wall_points((X + u)[self.pore_loop])
+            return wall_points((X + u)[self.pore_loop], sim.disc.fidelity.grading)
         tracked = sim.tracked(X, u)
         return jnp.stack([tracked[p] for p in self.point_names])
 
@@ -232,7 +232,7 @@ def pore_wall(disc, X: np.ndarray, cell) -> np.ndarray:
     i, j = cell
     centre = shapely.Point(0.5 * (spec.x_breaks[i] + spec.x_breaks[i + 1]), 0.5 * (spec.y_breaks[j] + spec.y_breaks[j + 1]))
     for loop in oriented_loops(disc, X)[1:]:
-        if shapely.Polygon(sample_loop(X[loop], PER_SPAN)).contains(centre):
+        if shapely.Polygon(sample_loop(X[loop], PER_SPAN, disc.fidelity.grading)).contains(centre):
             return loop
     raise ConfigError(f"task.pore {list(cell)}: no pore of scene {spec.name} surrounds the centre of that cell")
 
@@ -246,6 +246,6 @@ def spec(cfg: SpecConfig, sim) -> SpecTask:
         return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.actuation_matrix[:, group.actuation]))
     if cfg.goal == "pore_area":
         loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
-        return SpecTask(cfg, wall_points(X[loop]), loop)
+        return SpecTask(cfg, wall_points(X[loop], sim.disc.fidelity.grading), loop)
     tracked = sim.disc.tracked_points(X)
     return SpecTask(cfg, jnp.stack([tracked[p] for p in cfg.points]))

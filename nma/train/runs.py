@@ -110,10 +110,13 @@ def fingerprint(s: TrainConfig) -> dict:
                 del task[key]  # unset: as before these existed, so that earlier runs resume
         if s.task.dataset:  # the descriptors themselves, not only the file's name
             task["dataset_sha256"] = _sha256(Path(s.task.dataset))
+    fidelity = asdict(s.fidelity)
+    if fidelity["grading"] == 1.0:
+        del fidelity["grading"]  # the default (uniform knots): runs from before the option resume
     scene = asdict(s.scene)
     del scene["contact"]  # the scene's default for contact=auto: the resolved choice is s.contact, below
     return {"task": task, "scene": scene, "model": asdict(s.model),
-            "fidelity": asdict(s.fidelity), "material": material, "optim": asdict(s.optim),
+            "fidelity": fidelity, "material": material, "optim": asdict(s.optim),
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
 
 
@@ -133,7 +136,8 @@ def fidelity_record(disc, fidelity) -> dict:
 
     choice = choice_of(fidelity, disc.spec.name)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
-            "dofs": disc.n_dofs, "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
+            "grading": disc.fidelity.grading, "dofs": disc.n_dofs,
+            "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
 
 
 def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, world=None, exact_init: bool = False):
