@@ -35,6 +35,8 @@ BAD_RUN = [
     ("scene.radii_init=0", "scene.radii_init must be a finite number in (0, 1), got 0.0"),
     ("scene.radii_init=1", "scene.radii_init must be a finite number in (0, 1), got 1.0"),
     ("fidelity.quad_points=1", "fidelity.quad_points must be an integer in [2, 10], got 1"),
+    ("fidelity.grading=0.5", "fidelity.grading must be a finite number in [1, 4], got 0.5"),
+    ("fidelity=auto fidelity.grading=2", "fidelity.grading=2 with fidelity=auto"),
     ("fidelity.ctrl_per_patch=6", "fidelity.ctrl_per_patch must be 3k + 2"),
     ("scene=rotation_double", "scene=rotation_double does not fit task=translation"),
     ("trainer.resume=maybe", "trainer.resume must be one of ['false', 'true', 'force'], got 'maybe'"),
@@ -325,6 +327,16 @@ def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
     mixed = fingerprint(validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed")))
     assert default["material"] == {"E": 0.07, "nu": 0.3}
     assert mixed["material"]["formulation"] == "mixed" and "contact" not in default
+
+
+def test_checkpoints_with_uniform_knots_keep_their_fingerprint():
+    """Runs from before fidelity.grading existed resume (uniform knots, the default, are left out of the
+    fingerprint); graded knots are in it, so a graded run never continues a uniform one's checkpoint."""
+    from nma.train.runs import fingerprint
+
+    default = fingerprint(validate(compose_cfg("task=translation", "logger=none")))
+    graded = fingerprint(validate(compose_cfg("task=translation", "logger=none", "fidelity.grading=2")))
+    assert "grading" not in default["fidelity"] and graded["fidelity"]["grading"] == 2.0
 
 
 @pytest.mark.parametrize("overrides, contact", [

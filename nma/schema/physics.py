@@ -7,6 +7,7 @@ from typing import ClassVar, Optional
 from ..geometry.options import GRADING_MAX, Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
 from ..solver.options import WARM_START_NEEDS_HOST, NewtonOptions
+from ..errors import ConfigError
 from ..settings import Schema, bounded, choice
 
 
@@ -43,6 +44,10 @@ class Fidelity(Schema):
 
     def check(self):
         Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)
+        if self.tolerance is not None and self.grading != 1.0:
+            raise ConfigError(f"fidelity.grading={self.grading:g} with fidelity=auto (fidelity.tolerance): the fronts it "
+                              "picks from are measured with uniform knots; set fidelity.ctrl_per_patch and "
+                              "fidelity.quad_points yourself, or leave fidelity.grading at 1")
 
 
 _CONTACT = ContactSettings()  # the contact model's defaults
