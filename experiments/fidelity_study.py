@@ -465,6 +465,9 @@ def main():
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if not args.convergence and (args.unpinned or args.grading != 1.0 or args.ladder != list(LADDER)):
+        ap.error("--unpinned, --grading and --ladder belong to --convergence (the study's fronts are of the paper's "
+                 "scenes with uniform knots)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
@@ -476,7 +479,7 @@ def main():
                 report(json.loads((args.out / f"{scene}.json").read_text()), args.out)
             continue
         # one process per scene: its settings are timed side by side, its memory is its own
-        result_file = args.out / f".{scene}.partial.json"
+        result_file = args.out / f".{variant(scene, args.grading, args.unpinned)}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
                *(["--convergence", "--grading", str(args.grading), "--ladder", *map(str, args.ladder)]

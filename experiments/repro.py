@@ -113,6 +113,7 @@ def summarise(out: Path, experiment: str, refine: bool):
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
     fid = lambda r: (f"{r['fidelity']['ctrl_per_patch']} x {r['fidelity']['quad_points']}"  # noqa: E731
+                     + (f", grading {r['fidelity']['grading']:g}" if r["fidelity"].get("grading", 1.0) != 1.0 else "")
                      + (", contact" if r["fidelity"].get("contact") else ""))
     physical = lambda r: (f"{r['invalid_states']} of {r['checked_states']}"  # noqa: E731  (older runs: unknown)
                           if "invalid_states" in r else "not checked")

@@ -103,10 +103,11 @@ def hydra_main(cfg: DictConfig) -> None:
         result = evaluate(validate(cfg))
     t, e = result["training_fidelity"], result["evaluated_fidelity"]
     logging.getLogger("nma.evaluate").info(
-        "%s: %.4g %s at the training fidelity (%d dofs, %d of %d solves failed), %.4g at %dx%d (%d dofs, %d failed); "
+        "%s: %.4g %s at the training fidelity (%d dofs, %d of %d solves failed), %.4g at %dx%d%s (%d dofs, %d failed); "
         "change %+.3g (each over its converged solves)", result["metric"], t["metric"], result["unit"],
         t["fidelity"]["dofs"], t["failed_solves"], result["samples"], e["metric"], e["fidelity"]["ctrl_per_patch"],
-        e["fidelity"]["quad_points"], e["fidelity"]["dofs"], e["failed_solves"], result["change"])
+        e["fidelity"]["quad_points"], f" graded {e['fidelity']['grading']:g}" if e["fidelity"]["grading"] != 1.0 else "",
+        e["fidelity"]["dofs"], e["failed_solves"], result["change"])
     brief = {k: v for k, v in result.items() if k not in ("training_fidelity", "evaluated_fidelity")}
     brief.update(training_metric=t["metric"], evaluated_metric=e["metric"],
                  training_invalid_states=t["invalid_states"], evaluated_invalid_states=e["invalid_states"],

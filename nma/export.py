@@ -180,7 +180,8 @@ def evaluation_states(run_dir) -> dict:
         found, source = {k: found[k] for k in keys}, f"solved again from {path.name}"
     fidelity = settings.fidelity
     return {"valid": found["invalid_states"] == 0, **found, "step": step, "source": source,
-            "fidelity": f"{fidelity.ctrl_per_patch} x {fidelity.quad_points}"}
+            "fidelity": f"{fidelity.ctrl_per_patch} x {fidelity.quad_points}"
+                        + (f", grading {fidelity.grading:g}" if fidelity.grading != 1.0 else "")}
 
 
 # the paper's Fig. 5: the translation part pulled at both sides, pushed at both, pushed at one; the

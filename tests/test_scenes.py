@@ -140,6 +140,53 @@ def test_refined_discretisation_keeps_geometry(grading):
     assert fine.n_points == discretise(spec, Resolution(8, 3)).n_points
 
 
+def test_graded_knots_describe_the_same_body():
+    """Graded knots re-parametrise, they do not change the body: at 8 x 3 with grading 3 against uniform
+    knots, the boundary curves (sampled, as Bezier segments, as one DXF spline), their enclosed areas, the
+    tracked points, the pore's boundary points and a traction's total force and moment are the same, and
+    the rest state passes the validity check."""
+    from scipy.interpolate import BSpline
+
+    from nma.geometry.bspline import basis_matrix
+    from nma.geometry.outline import Outline, bezier_segments, loop_spline, sample_loop
+    from nma.geometry.scene import cooks_membrane
+    from nma.geometry.validity import StateChecker
+
+    for name in ("translation", "shape_matching"):
+        spec = scene_from_config(config.load("scene", name))
+        uniform, graded = (discretise(spec, Resolution(8, 3, grading=g)) for g in (1.0, 3.0))
+        X = {d: np.asarray(d.reference_points(d.init_params())) for d in (uniform, graded)}
+        outlines = [Outline.of(d, X[d]) for d in (uniform, graded)]
+        np.testing.assert_allclose(outlines[1].enclosed_areas(), outlines[0].enclosed_areas(), rtol=1e-12)
+        for a, b in zip(outlines[0].loops, outlines[1].loops):  # the same curve: its corners match too
+            np.testing.assert_allclose(b[:, [0, -1]], a[:, [0, -1]], atol=1e-12)
+            bez = bezier_segments(b, 3.0)                        # each span's Bezier: ends and mid-curve
+            mid = 0.25 * bez[:, 0] + 0.5 * bez[:, 1] + 0.25 * bez[:, 2]
+            points = sample_loop(b, 2, 3.0).reshape(-1, 2, 2)    # per span: its start and its midpoint
+            np.testing.assert_allclose(bez[:, 0], points[:, 0], atol=1e-12)
+            np.testing.assert_allclose(mid, points[:, 1], atol=1e-12)
+            ctrl, knots = loop_spline(b, 3.0)                    # the DXF spline through the whole loop
+            t = np.concatenate([k + np.asarray([0.1, 0.5, 0.9]) for k in range(len(b))])
+            edge = np.repeat(np.arange(len(b)), 3)
+            local = t - edge
+            on_edge = np.einsum("nk,nkd->nd", basis_matrix(local, b.shape[1], grading=3.0), b[edge])
+            np.testing.assert_allclose(BSpline(knots, ctrl, 2)(t), on_edge, atol=1e-12)
+        for key in uniform.tracked:
+            np.testing.assert_allclose(graded.tracked_points(X[graded])[key],
+                                       uniform.tracked_points(X[uniform])[key], atol=1e-12)
+        if name == "shape_matching":
+            (iu, wu), (ig, wg) = uniform.pore_boundary(), graded.pore_boundary()
+            np.testing.assert_allclose(np.einsum("nk,nkd->nd", wg, X[graded][ig]),
+                                       np.einsum("nk,nkd->nd", wu, X[uniform][iu]), atol=1e-12)
+        assert StateChecker(graded, X[graded]).check(np.zeros_like(X[graded])).valid
+    forces = []
+    for g in (1.0, 3.0):
+        cook = discretise(cooks_membrane(), Resolution(8, 3, grading=g))
+        X, f = np.asarray(cook.reference_points({})), cook.external_force.reshape(-1, 2)
+        forces.append([*f.sum(axis=0), np.sum(X[:, 0] * f[:, 1] - X[:, 1] * f[:, 0])])
+    np.testing.assert_allclose(forces[1], forces[0], rtol=1e-12)
+
+
 @pytest.mark.parametrize("lo, init", [(1e-6, 1e-6), (0.05, 0.999999)])
 def test_merging_follows_the_topology_not_the_radii(lo, init):
     """A radius at its bound must not merge a pore's sides into one point (nor split anything)."""

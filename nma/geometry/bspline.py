@@ -26,13 +26,19 @@ def span_breaks(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
     so that patches of either orientation still meet knot to knot."""
     spans = n_ctrl - DEGREE
     if grading == 1.0:
-        return np.linspace(0.0, 1.0, spans + 1)
+        return _frozen(np.linspace(0.0, 1.0, spans + 1))
     if spans % 3:
         raise ValueError(f"graded knots need 3k + 2 control points (one knot per design span), got {n_ctrl}")
     k = spans // 3
     outer = (np.arange(k + 1) / k) ** grading / 3.0  # 0 .. 1/3, finest at 0
     middle = 1.0 / 3.0 + np.arange(1, k) / (3.0 * k)
-    return np.concatenate([outer, middle, 1.0 - outer[::-1]])
+    return _frozen(np.concatenate([outer, middle, 1.0 - outer[::-1]]))
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """A cached table, read-only so that no caller changes it for the next."""
+    a.setflags(write=False)
+    return a
 
 
 def knot_vector(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
@@ -81,7 +87,7 @@ def refinement_operator(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
     coarse = basis_matrix(x, DESIGN_CTRL)
     R = np.linalg.solve(fine, coarse)
     R[np.abs(R) < 1e-14] = 0.0
-    return R
+    return _frozen(R)
 
 
 def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -114,8 +114,13 @@ def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
 def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float, grading: float):
     """Consistent nodal forces of a dead traction on every patch edge lying on `seg`."""
     gx, gw = gauss_legendre_01(quad)
-    s = span_points(n_ctrl, gx, grading).ravel()
-    w = (gw[None, :] * span_widths(n_ctrl, grading)[:, None]).ravel()
+    if grading == 1.0:
+        spans = n_ctrl - 2
+        s = ((np.arange(spans)[:, None] + gx[None, :]) / spans).ravel()
+        w = np.tile(gw, spans) / spans
+    else:
+        s = span_points(n_ctrl, gx, grading).ravel()
+        w = (gw[None, :] * span_widths(n_ctrl, grading)[:, None]).ravel()
     N, dN = basis_matrix(s, n_ctrl, grading=grading), basis_matrix(s, n_ctrl, 1, grading)
     forces = []
     for p, net in enumerate(nets):
