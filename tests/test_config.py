@@ -336,7 +336,8 @@ def test_checkpoints_with_uniform_knots_keep_their_fingerprint():
     from nma.train.runs import fingerprint
 
     default = fingerprint(validate(compose_cfg("task=translation", "logger=none")))
-    graded = fingerprint(validate(compose_cfg("task=translation", "logger=none", "fidelity.grading=2")))
+    graded = fingerprint(validate(compose_cfg("task=translation", "logger=none", "fidelity.ctrl_per_patch=8",
+                                              "fidelity.grading=2")))
     assert "grading" not in default["fidelity"] and graded["fidelity"]["grading"] == 2.0
 
 
