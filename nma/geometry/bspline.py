@@ -54,11 +54,20 @@ def span_widths(n_ctrl: int, grading: float = 1.0) -> np.ndarray:
 
 
 def span_points(n_ctrl: int, local, grading: float = 1.0) -> np.ndarray:
-    """(S, len(local)) patch coordinates of the points at `local` in [0, 1] of each knot span."""
+    """(S, len(local)) patch coordinates of the points at `local` in [0, 1] of each knot span (uniform knots:
+    (span + local) / S, the arithmetic every table used before grading existed)."""
     local = np.asarray(local, float)[None, :]
     if grading == 1.0:
-        return (np.arange(n_ctrl - DEGREE)[:, None] + local) * (1.0 / (n_ctrl - DEGREE))
+        return (np.arange(n_ctrl - DEGREE)[:, None] + local) / (n_ctrl - DEGREE)
     return span_breaks(n_ctrl, grading)[:-1, None] + local * span_widths(n_ctrl, grading)[:, None]
+
+
+def span_weights(n_ctrl: int, weights, grading: float = 1.0) -> np.ndarray:
+    """(S * len(weights),) 1D quadrature weights on [0, 1] scaled to each knot span, span-major."""
+    weights = np.asarray(weights, float)
+    if grading == 1.0:
+        return np.tile(weights, n_ctrl - DEGREE) / (n_ctrl - DEGREE)
+    return (weights[None, :] * span_widths(n_ctrl, grading)[:, None]).ravel()
 
 
 def basis_matrix(x: np.ndarray, n_ctrl: int, derivative: int = 0, grading: float = 1.0) -> np.ndarray:
@@ -122,7 +131,10 @@ def check_tables(n_ctrl: int, grading: float = 1.0):
 def _tables(n_ctrl: int, grading: float, points: np.ndarray, point_weights: np.ndarray):
     """The tables of element_tables at the tensor grid of 1D `points` in [0, 1] of each span."""
     spans = n_ctrl - DEGREE
-    at, h = span_points(n_ctrl, points, grading), span_widths(n_ctrl, grading)
+    h = span_widths(n_ctrl, grading)
+    # uniform: (span + point) * h, bit for bit the tables before grading existed
+    at = ((np.arange(spans)[:, None] + points[None, :]) * h[0] if grading == 1.0
+          else span_points(n_ctrl, points, grading))
     k = len(points)
     basis = lambda x, d=0: basis_matrix(x, n_ctrl, d, grading)
     local, vals, grads, wts = [], [], [], []

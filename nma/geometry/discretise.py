@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .bspline import (DESIGN_CTRL, basis_matrix, check_tables, element_tables, gauss_legendre_01, greville,
-                      refinement_operator, span_points, span_widths)
+                      refinement_operator, span_points, span_weights)
 from ..errors import ConfigError
 from ..mechanics.options import FORMULATIONS
 from .design import make_design
@@ -114,13 +114,7 @@ def _on_segment(pts: np.ndarray, seg, tol: float) -> np.ndarray:
 def _edge_traction(nets: np.ndarray, seg, traction, n_ctrl: int, quad: int, tol: float, grading: float):
     """Consistent nodal forces of a dead traction on every patch edge lying on `seg`."""
     gx, gw = gauss_legendre_01(quad)
-    if grading == 1.0:
-        spans = n_ctrl - 2
-        s = ((np.arange(spans)[:, None] + gx[None, :]) / spans).ravel()
-        w = np.tile(gw, spans) / spans
-    else:
-        s = span_points(n_ctrl, gx, grading).ravel()
-        w = (gw[None, :] * span_widths(n_ctrl, grading)[:, None]).ravel()
+    s, w = span_points(n_ctrl, gx, grading).ravel(), span_weights(n_ctrl, gw, grading)
     N, dN = basis_matrix(s, n_ctrl, grading=grading), basis_matrix(s, n_ctrl, 1, grading)
     forces = []
     for p, net in enumerate(nets):

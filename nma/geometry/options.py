@@ -23,8 +23,8 @@ class Resolution:
             raise ConfigError(f"fidelity.ctrl_per_patch must be 3k + 2 with k >= 1 (5, 8, 11, ...: one knot per "
                               f"design span), got {self.ctrl_per_patch}")
         if self.grading != 1.0 and self.ctrl_per_patch == 5:
-            raise ConfigError(f"fidelity.grading={self.grading:g} changes nothing at 5 control points per patch (one span "
-                              "per design span); it needs fidelity.ctrl_per_patch >= 8, or leave it at 1")
+            raise ConfigError(f"fidelity.grading={self.grading:g} changes nothing at 5 control points per patch "
+                              "(one span per design span); it needs fidelity.ctrl_per_patch >= 8, or leave it at 1")
         if not 1.0 <= self.grading <= GRADING_MAX:
             raise ConfigError(f"fidelity.grading must be in [1, {GRADING_MAX:g}] (1: uniform knots), "
                               f"got {self.grading}")

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bspline import basis_matrix, gauss_legendre_01, span_breaks, span_points, span_widths
+from .bspline import basis_matrix, gauss_legendre_01, span_breaks, span_points, span_weights
 
 if TYPE_CHECKING:  # discretise builds the contact model from the loops found here
     from .discretise import Discretisation
@@ -148,13 +148,8 @@ def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
 def _area_tables(m: int, grading: float = 1.0):
     """Basis, derivative and weights at 2 Gauss points per span of an edge with m control points."""
     g, w = gauss_legendre_01(2)
-    if grading == 1.0:
-        n = m - 2
-        t = (np.arange(n)[:, None] + g[None]).ravel() / n
-        return basis_matrix(t, m), basis_matrix(t, m, derivative=1), np.tile(w, n) / n
     t = span_points(m, g, grading).ravel()
-    return (basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading),
-            (w[None, :] * span_widths(m, grading)[:, None]).ravel())
+    return basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading), span_weights(m, w, grading)
 
 
 @lru_cache(maxsize=None)

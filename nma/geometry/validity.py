@@ -55,11 +55,7 @@ def _halves() -> tuple[np.ndarray, np.ndarray]:
 @lru_cache(maxsize=None)
 def _element_bases(m: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Basis (S*4, m) and derivative at the 4 equally spaced points (ends included) of every knot span."""
-    n_spans = m - 2
-    if grading == 1.0:
-        t = ((np.arange(n_spans)[:, None] + _NODES[None]) / n_spans).ravel()
-    else:
-        t = span_points(m, _NODES, grading).ravel()
+    t = span_points(m, _NODES, grading).ravel()
     # the right end of a span is the left limit there: inside a patch the basis is C1, so either side
     t = np.minimum(t, 1.0 - 1e-12)
     return basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading)
@@ -68,9 +64,7 @@ def _element_bases(m: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray
 def _element_centres(disc: Discretisation, points: np.ndarray) -> np.ndarray:
     """(P * S * S, 2) the centre (parametric midpoint) of every Bezier element, in patch order."""
     m, g = disc.fidelity.ctrl_per_patch, disc.fidelity.grading
-    S = m - 2
-    mid = (np.arange(S) + 0.5) / S if g == 1.0 else span_points(m, [0.5], g).ravel()
-    B = basis_matrix(np.minimum(mid, 1.0 - 1e-12), m, grading=g)
+    B = basis_matrix(np.minimum(span_points(m, [0.5], g).ravel(), 1.0 - 1e-12), m, grading=g)
     nets = points[disc.patch_points].reshape(disc.n_patches, m, m, 2)
     return np.einsum("ai,bj,pijd->pabd", B, B, nets).reshape(-1, 2)
 

@@ -86,7 +86,7 @@ def build(loops: list[np.ndarray], points: np.ndarray, settings: ContactSettings
     m = loops[0].shape[1]
     spans, k = m - 2, settings.per_span
     s = np.arange(k + 1) / k
-    at = (np.arange(spans)[:, None] + s) / spans if grading == 1.0 else span_points(m, s, grading)
+    at = span_points(m, s, grading)
     segments, basis, pairs, start, end = [], [], [], [], []
     for loop in loops:
         first = len(segments)
