@@ -3,6 +3,7 @@
     python experiments/fidelity_study.py                        # every scene (about an hour on 2 cores)
     python experiments/fidelity_study.py --scenes translation --quick
     python experiments/fidelity_study.py --replot               # tables and figures from the JSON only
+    python experiments/fidelity_study.py --unpinned             # the well-posed variants' fronts
 
 Settings: control points per patch (5, 8, 11) x Gauss points per span (2..5) at the solver's default
 Newton tolerance, and looser tolerances (1e-8, 1e-6) at the paper's (5 x 5) and the fast (5 x 3) setting.
@@ -28,7 +29,10 @@ reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against th
 and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
-front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json.
+front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json, which
+records how the scene was held (its pinned points, supports and actuated segments: auto reads a front only
+for a scene held the same way).  `--unpinned` measures each scene's well-posed variant (scene.pinned=[]):
+<scene>_unpinned.{json,md,png} and the front nma/data/fidelity/<scene>_unpinned.json.
 """
 from __future__ import annotations
 
@@ -82,6 +86,17 @@ class PeakMemory:
         self.peak = max(self.peak, self.rss())
 
 
+def scene_config(scene: str, unpinned: bool = False) -> dict:
+    """The scene's config as the study measures it: as shipped, or its well-posed variant (its pinned points
+    removed; the actuated segments hold it)."""
+    from nma import config
+
+    spec = config.load("scene", scene)
+    if unpinned:
+        spec["pinned"] = []
+    return spec
+
+
 def stats(xs) -> dict:
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
@@ -104,9 +119,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
 
     ctrl, quad, rtol = setting
     with PeakMemory() as memory:
-        spec = config.load("scene", scene)
-        if unpinned:
-            spec["pinned"] = []
+        spec = scene_config(scene, unpinned)
         # at 5 control points every side has one span per design span: nothing to grade
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading if ctrl > 5 else 1.0)),
                         "auto", NewtonOptions(rtol=rtol))
@@ -251,13 +264,16 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
 
 
 def variant(scene: str, grading: float = 1.0, unpinned: bool = False) -> str:
-    """The reference check's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`."""
+    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`."""
     return scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
 
 
+def stem(result: dict) -> str:
+    return variant(result["scene"], result.get("grading", 1.0), result.get("unpinned", False))
+
+
 def convergence_report(result: dict, out: Path) -> str:
-    scene, ladder = result["scene"], [s + 2 for s in result["spans"]]
-    stem = variant(scene, result.get("grading", 1.0), result.get("unpinned", False))
+    scene, ladder, name = result["scene"], [s + 2 for s in result["spans"]], stem(result)
     fmt = lambda v: "-" if v is None else f"{v:.3g}"
     ref = f"{REFERENCE[0]}x{REFERENCE[1]}"
     held = ("held by its actuated segments alone (scene.pinned=[])" if result.get("unpinned")
@@ -287,8 +303,8 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
     lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
     text = "\n".join(lines) + "\n"
-    (out / f"{stem}.convergence.json").write_text(json.dumps(result, indent=1))
-    (out / f"{stem}.convergence.md").write_text(text)
+    (out / f"{name}.convergence.json").write_text(json.dumps(result, indent=1))
+    (out / f"{name}.convergence.md").write_text(text)
     return text
 
 
@@ -299,14 +315,17 @@ def pareto(rows: list[dict], error: str) -> list[int]:
             if not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for t2, e2 in pts)]
 
 
-def run_scene(scene: str, quick: bool, draws: int) -> dict:
+def run_scene(scene: str, quick: bool, draws: int, unpinned: bool = False) -> dict:
+    from nma.fidelity import holds
+    from nma.schema import scene_from_config
+
     grid, reference = (QUICK_GRID, QUICK_REFERENCE) if quick else (GRID, REFERENCE)
-    ref = measure(scene, reference, draws)
+    ref = measure(scene, reference, draws, unpinned=unpinned)
     print(f"{scene}: reference {reference}: {ref['dofs']} dofs, forward+gradient "
           f"{ref['forward_grad_seconds']['median']:.2f} s", flush=True)
     rows = {}
     for setting in sorted(grid, key=lambda s: (s[0], s[1], -s[2])):
-        r = measure(scene, setting, draws)
+        r = measure(scene, setting, draws, unpinned=unpinned)
         if not r["failed_draws"]:
             r.update(compare(r, ref))
         rows[setting] = r
@@ -314,7 +333,8 @@ def run_scene(scene: str, quick: bool, draws: int) -> dict:
               + (f"gradient error {r['gradient_error']:.2e}, observable error {r['observable_error']:.2e}"
                  if "gradient_error" in r else f"FAILED {r['failed_draws']}"), flush=True)
     ladder = [s for s in ((8, 5, DEFAULT_RTOL), (11, 5, DEFAULT_RTOL)) if s in rows]
-    result = {"scene": scene, "draws": draws, "machine": {"cpus": os.cpu_count()},
+    result = {"scene": scene, "unpinned": unpinned, "holds": holds(scene_from_config(scene_config(scene, unpinned))),
+              "draws": draws, "machine": {"cpus": os.cpu_count()},
               "reference": {k: v for k, v in ref.items() if not k.startswith("_")},
               "convergence": refinement([rows[s] for s in ladder] + [ref])[0] if len(ladder) == 2 else None,
               "settings": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows.values()]}
@@ -329,14 +349,14 @@ def front_of(result: dict) -> list[dict]:
 
 
 def ship(result: dict, data_dir: Path) -> Path:
-    """What fidelity=auto reads: per setting its time and errors, the front marked."""
+    """What fidelity=auto reads: how the scene was held, per setting its time and errors, the front marked."""
     keep = ("ctrl_per_patch", "quad_points", "dofs", "forward_grad_seconds", "gradient_error",
             "gradient_cosine", "observable_error", "on_front")
-    body = {"scene": result["scene"], "rtol": DEFAULT_RTOL, "machine": result["machine"],
+    body = {"scene": result["scene"], "holds": result["holds"], "rtol": DEFAULT_RTOL, "machine": result["machine"],
             "reference": {k: result["reference"][k] for k in ("ctrl_per_patch", "quad_points", "rtol", "dofs")},
             "settings": [{k: r[k] for k in keep} for r in front_of(result)]}
     data_dir.mkdir(parents=True, exist_ok=True)
-    path = data_dir / f"{result['scene']}.json"
+    path = data_dir / f"{stem(result)}.json"
     path.write_text(json.dumps(body, indent=1) + "\n")
     return path
 
@@ -347,12 +367,13 @@ def report(result: dict, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    scene, ref = result["scene"], result["reference"]
-    (out / f"{scene}.json").write_text(json.dumps(result, indent=1))
+    scene, ref, name = result["scene"], result["reference"], stem(result)
+    (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     rows = result["settings"]
     front = {(r["ctrl_per_patch"], r["quad_points"]) for r in front_of(result) if r["on_front"]}
     groups = list(next(r for r in rows if "gradient" in r)["gradient"])
-    lines = [f"# Fidelity study: {scene}", "",
+    lines = [f"# Fidelity study: {scene}" + (", held by its actuated segments alone (scene.pinned=[])"
+                                             if result.get("unpinned") else ""), "",
              f"Reference: {ref['ctrl_per_patch']} control points per patch, {ref['quad_points']} Gauss points, "
              f"Newton tolerance {ref['rtol']:g} ({ref['dofs']} dofs, forward + gradient "
              f"{ref['forward_grad_seconds']['median']:.2f} s). Times: min / median of {result['draws']} draws, "
@@ -381,7 +402,7 @@ def report(result: dict, out: Path) -> None:
                       "(5 Gauss points):", ""]
         lines += [f"- {name}{' (relative)' if name != 'observable' else ''}: {fmt(c)}"
                   for name, c in conv["quantities"].items()]
-    (out / f"{scene}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, error, label in ((axes[0], "gradient_error", "gradient error (worst relative, over groups)"),
@@ -405,14 +426,14 @@ def report(result: dict, out: Path) -> None:
             ax.step(*zip(*pts), where="post", color="black", lw=1, label="Pareto front")
         ax.set(xscale="log", yscale="log", xlabel="forward + gradient time [s] (median)", ylabel=label)
         ax.legend(fontsize=7)
-    fig.suptitle(f"{scene}: speed against accuracy (reference {ref['ctrl_per_patch']} x {ref['quad_points']})",
+    fig.suptitle(f"{name}: speed against accuracy (reference {ref['ctrl_per_patch']} x {ref['quad_points']})",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(out / f"{scene}.png", dpi=120)
+    fig.savefig(out / f"{name}.png", dpi=120)
     plt.close(fig)
 
 
-def summary(results: list[dict], out: Path, tolerance: float = 0.1) -> str:
+def summary(results: list[dict], out: Path, tolerance: float = 0.1, unpinned: bool = False) -> str:
     """One table over the scenes: the paper's and the fast preset's cost and error, the cheapest
     setting within `tolerance` (what fidelity=auto picks by default), and how well the reference is known."""
     from nma.fidelity import fastest_within
@@ -428,12 +449,12 @@ def summary(results: list[dict], out: Path, tolerance: float = 0.1) -> str:
         est = [c["finest_error"] for name, c in conv.get("quantities", {}).items()
                if name.startswith("gradient") and c["finest_error"] is not None]
         lines.append(
-            f"| {result['scene']} | {rows[PAPER]['dofs']} | {cell(rows[PAPER])} / {rows[PAPER]['gradient_cosine']:.3f} | "
+            f"| {stem(result)} | {rows[PAPER]['dofs']} | {cell(rows[PAPER])} / {rows[PAPER]['gradient_cosine']:.3f} | "
             f"{cell(rows[FAST])} | " + (f"{pick['ctrl_per_patch']}x{pick['quad_points']}, {cell(pick)}" if pick else "none")
             + f" | {ref['dofs']}, {ref['forward_grad_seconds']['median']:.3g} | "
             + (f"gradient <= {max(est):.2g} (relative)" if est else "undetermined") + " |")
     text = "\n".join(lines) + "\n"
-    (out / "summary.md").write_text(text)
+    (out / ("summary_unpinned.md" if unpinned else "summary.md")).write_text(text)
     return text
 
 
@@ -442,7 +463,7 @@ def child(args) -> None:
 
     configure_jax()
     result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned)
-              if args.convergence else run_scene(args.scenes[0], args.quick, args.draws))
+              if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned))
     Path(args.result).write_text(json.dumps(result))
 
 
@@ -458,7 +479,8 @@ def main():
     ap.add_argument("--convergence", action="store_true",
                     help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
     ap.add_argument("--unpinned", action="store_true",
-                    help="--convergence of each scene's well-posed variant: its pinned corners removed")
+                    help="each scene's well-posed variant: its pinned corners removed (the front, or with "
+                         "--convergence the reference check)")
     ap.add_argument("--grading", type=float, default=1.0,
                     help="--convergence with knots graded towards the patch corners (fidelity.grading)")
     ap.add_argument("--ladder", type=int, nargs="+", default=list(LADDER),
@@ -466,21 +488,22 @@ def main():
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if not args.convergence and (args.unpinned or args.grading != 1.0 or args.ladder != list(LADDER)):
-        ap.error("--unpinned, --grading and --ladder belong to --convergence (the study's fronts are of the paper's "
-                 "scenes with uniform knots)")
+    if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER)):
+        ap.error("--grading and --ladder belong to --convergence (the study's fronts are of uniform knots, which "
+                 "fidelity=auto requires)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
         return child(args)
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
+        name = variant(scene, args.grading, args.unpinned)
         if args.replot:
-            if (args.out / f"{scene}.json").exists():
-                report(json.loads((args.out / f"{scene}.json").read_text()), args.out)
+            if (args.out / f"{name}.json").exists():
+                report(json.loads((args.out / f"{name}.json").read_text()), args.out)
             continue
         # one process per scene: its settings are timed side by side, its memory is its own
-        result_file = args.out / f".{variant(scene, args.grading, args.unpinned)}.partial.json"
+        result_file = args.out / f".{name}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
                *(["--convergence", "--grading", str(args.grading), "--ladder", *map(str, args.ladder)]
@@ -495,12 +518,12 @@ def main():
         report(result, args.out)
         if not args.quick:  # a smoke run's front must not replace the shipped one
             print(f"{scene}: front for fidelity=auto -> {ship(result, args.data)}")
-        print(f"{scene}: -> {args.out / scene}.{{json,md,png}}", flush=True)
+        print(f"{scene}: -> {args.out / name}.{{json,md,png}}", flush=True)
     if args.convergence:
         return
-    done = [json.loads((args.out / f"{scene}.json").read_text()) for scene in SCENES
-            if (args.out / f"{scene}.json").exists()]
-    print(summary(done, args.out))
+    stems = [variant(scene, unpinned=args.unpinned) for scene in SCENES]
+    done = [json.loads((args.out / f"{s}.json").read_text()) for s in stems if (args.out / f"{s}.json").exists()]
+    print(summary(done, args.out, unpinned=args.unpinned))
 
 
 if __name__ == "__main__":

@@ -4,7 +4,11 @@ experiments/fidelity_study.py measures, for each scene, every setting's forward 
 gradient error against a converged reference (the worst relative norm error over the learned geometry
 groups and the actuations, over random draws), and ships the results as nma/data/fidelity/<scene>.json.
 A run with `fidelity.tolerance` set takes, from its scene's file, the fastest setting whose gradient
-error is at most the tolerance; nothing is calibrated at run time.  Each command resolves its settings
+error is at most the tolerance; nothing is calibrated at run time.  A front's errors are of the body held
+as it was measured, so each front records its scene's pinned points, supports and actuated segments, and
+auto reads only a front of the scene held as the run holds it: the paper's scenes ship two, as the paper
+holds them (<scene>.json) and their well-posed variants without pins (<scene>_unpinned.json,
+`scene.pinned=[]`).  Each command resolves its settings
 once, where it checks them (`resolve`), and hands the concrete setting down: below the commands no
 module knows of fidelity=auto.
 """
@@ -18,6 +22,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from .errors import ConfigError
+from .geometry.scene import SceneSpec
 from .schema import Fidelity, SceneConfig
 
 DATA = Path(__file__).resolve().parent / "data" / "fidelity"
@@ -41,6 +46,46 @@ def _front(path: Path) -> dict:
     return json.loads(path.read_text())
 
 
+def holds(spec: SceneSpec) -> dict:
+    """How a scene is held, as its front records it (JSON's lists and floats): its pinned points (in
+    order), supports (segment, fixed components) and actuated segments (segment, actuation, direction)."""
+    pt = lambda p: [float(p[0]), float(p[1])]  # noqa: E731
+    return {"pinned": sorted(pt(p) for p in spec.pinned),
+            "supports": [[pt(t.segment[0]), pt(t.segment[1]), sorted(int(c) for c in t.components)]
+                         for t in spec.supports],
+            "groups": [[pt(g.segment[0]), pt(g.segment[1]), int(g.actuation), pt(g.direction)] for g in spec.groups]}
+
+
+def _described(held: dict) -> str:
+    """The holds in words, for an error: the pins, and the supports where there are any."""
+    text = "scene.pinned=" + json.dumps(held["pinned"])
+    return text + (f", {len(held['supports'])} supports" if held["supports"] else "")
+
+
+def front_path(scene: str | SceneSpec, data: Path = DATA) -> Path:
+    """The front fidelity=auto reads for a scene: by name, the front of the scene as shipped
+    (<name>.json); for a SceneSpec, the front measured with the scene held as it is.  ConfigError where
+    the scene has no front, or none of its fronts was measured so held."""
+    name = scene if isinstance(scene, str) else scene.name
+    paths = [p for p in (data / f"{name}.json", *sorted(data.glob(f"{name}_*.json")))
+             if p.is_file() and _front(p).get("scene") == name]
+    if not paths:
+        raise ConfigError(f"fidelity=auto has no measured front for scene {name} ({data / name}.json is missing): "
+                          f"measure it with `python experiments/fidelity_study.py --scenes {name}` or choose a "
+                          "preset (fidelity=paper, fast, fine)")
+    if isinstance(scene, str):
+        return paths[0]
+    held = holds(scene)
+    match = [p for p in paths if _front(p).get("holds") == held]
+    if not match:
+        measured = "; ".join(f"{p.name}: {_described(_front(p)['holds'])}" for p in paths if "holds" in _front(p))
+        raise ConfigError(f"fidelity=auto has no front for scene {name} held as this run holds it "
+                          f"({_described(held)}, its supports and actuated segments as given): a front's errors "
+                          f"are of the body held as it was measured ({measured}).  Measure this one with "
+                          "experiments/fidelity_study.py, or choose a preset (fidelity=paper, fast, fine)")
+    return match[0]
+
+
 def fastest_within(rows: list[dict], tolerance: float) -> dict | None:
     """The measured setting with the smallest forward + gradient time whose gradient error is within
     `tolerance`, or None."""
@@ -48,15 +93,12 @@ def fastest_within(rows: list[dict], tolerance: float) -> dict | None:
     return min(ok, key=lambda r: r["forward_grad_seconds"]["median"]) if ok else None
 
 
-@lru_cache(maxsize=None)
-def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
-    """The fastest measured setting of `scene` whose gradient error is at most `tolerance`."""
-    path = data / f"{scene}.json"
-    if not path.is_file():
-        raise ConfigError(f"fidelity=auto has no measured front for scene {scene} ({path} is missing): measure it "
-                          f"with `python experiments/fidelity_study.py --scenes {scene}` or choose a preset "
-                          "(fidelity=paper, fast, fine)")
+def choose(scene: str | SceneSpec, tolerance: float, data: Path = DATA) -> Choice:
+    """The fastest measured setting of `scene` whose gradient error is at most `tolerance`, from the front
+    `front_path` finds."""
+    path = front_path(scene, data)
     front = _front(path)
+    scene = front["scene"]
     rows = front["settings"]
     pick = fastest_within(rows, tolerance)
     if pick is None:
@@ -66,7 +108,7 @@ def choose(scene: str, tolerance: float, data: Path = DATA) -> Choice:
                           f"{best['quad_points']} Gauss points), got {tolerance}")
     ref = front["reference"]
     reason = (f"fidelity=auto chose {pick['ctrl_per_patch']} control points per patch, {pick['quad_points']} Gauss "
-              f"points ({pick['dofs']} dofs) for scene {scene}: the fastest measured setting "
+              f"points ({pick['dofs']} dofs) for scene {scene} ({path.name}): the fastest measured setting "
               f"({pick['forward_grad_seconds']['median']:.3g} s forward + gradient on {front['machine']['cpus']} "
               f"cores) whose gradient error {pick['gradient_error']:.3g} (cosine {pick['gradient_cosine']:.4f}) "
               f"is within fidelity.tolerance={tolerance:g}; errors against {ref['ctrl_per_patch']} x "
@@ -81,7 +123,7 @@ def resolve(fidelity: Fidelity, scene: SceneConfig) -> Fidelity:
     the same).  ConfigError where the scene has no front, no setting meets the tolerance, or the
     setting's model would not fit in this machine's memory."""
     if fidelity.tolerance is not None:
-        choice = choose(scene.name, fidelity.tolerance)
+        choice = choose(scene.spec(), fidelity.tolerance)
         logging.getLogger("nma.fidelity").info(choice.reason)
         pick = choice.fidelity
         # the front sets the discretisation; what it does not measure is the user's
@@ -113,6 +155,6 @@ def physical_memory() -> int | None:
         return None
 
 
-def choice_of(fidelity: Fidelity, scene: str) -> Choice | None:
+def choice_of(fidelity: Fidelity, scene: str | SceneSpec) -> Choice | None:
     """For a setting fidelity=auto resolved: the measured row it came from and why (metrics.json, the log)."""
     return None if fidelity.tolerance is None else choose(scene, fidelity.tolerance)

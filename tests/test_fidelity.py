@@ -1,4 +1,5 @@
 """fidelity=auto: the choice from a measured front, its errors, and the fronts that ship with nma."""
+import dataclasses
 import json
 import logging
 
@@ -46,11 +47,52 @@ def test_auto_refuses_a_tolerance_below_the_front_and_a_scene_without_one(known_
         choose("other", 0.5, known_front)
 
 
-@pytest.mark.parametrize("scene", SCENES)
-def test_every_scene_ships_its_measured_front(scene):
-    """make study-fidelity wrote these: the paper's setting is measured, errors fall with refinement at 5
-    Gauss points, and the marked front is exactly the Pareto-optimal set of the rows."""
-    body = json.loads((DATA / f"{scene}.json").read_text())
+def held(scene="translation", **change):
+    from nma.schema import scene_from_config
+
+    return scene_from_config({**config.load("scene", scene), **change})
+
+
+def test_auto_reads_the_front_of_the_scene_held_as_the_run_holds_it(known_front):
+    """A front's errors are of the body held as it was measured: the scene as shipped reads <scene>.json,
+    its well-posed variant (no pins) <scene>_unpinned.json, and a scene held otherwise (one pin, a
+    support added) has no front: refused, naming how it is held and how the fronts were."""
+    from nma.fidelity import holds
+    from nma.geometry.scene import Support
+
+    paper = json.loads((known_front / "toy.json").read_text())
+    shipped, unpinned = held(), held(pinned=[])
+    for name, spec, rows in (("toy.json", shipped, paper["settings"]),
+                             ("toy_unpinned.json", unpinned, [row(5, 2, 0.08, 0.30), row(8, 3, 0.60, 0.05)])):
+        body = {**paper, "holds": holds(spec), "settings": rows}
+        (known_front / name).write_text(json.dumps(body))
+    toy = lambda spec: dataclasses.replace(spec, name="toy")  # noqa: E731
+    assert holds(shipped)["pinned"] and not holds(unpinned)["pinned"]
+    assert (choose(toy(shipped), 0.4, known_front).fidelity.ctrl_per_patch,
+            choose(toy(unpinned), 0.4, known_front).fidelity.ctrl_per_patch) == (5, 5)
+    assert choose(toy(shipped), 0.4, known_front).fidelity.quad_points == 3  # paper front: 5 x 3 at 0.35
+    assert choose(toy(unpinned), 0.4, known_front).fidelity.quad_points == 2  # its own: 5 x 2 at 0.30
+    assert "toy_unpinned.json" in choose(toy(unpinned), 0.1, known_front).reason
+    assert choose("toy", 0.4, known_front).fidelity.quad_points == 3  # by name: the scene as shipped
+    for other in (held(pinned=[[0, 0]]),
+                  dataclasses.replace(unpinned, supports=(Support(((0.0, 0.0), (5.0, 0.0)), (1,)),))):
+        with pytest.raises(ConfigError, match=r"no front for scene toy held as this run holds it \(scene.pinned="
+                                              r".*toy.json: scene.pinned=\[\[0.0, 0.0\].*toy_unpinned.json: "
+                                              r"scene.pinned=\[\]"):
+            choose(toy(other), 0.4, known_front)
+
+
+@pytest.mark.parametrize("variant", [*SCENES, *(f"{s}_unpinned" for s in SCENES)])
+def test_every_scene_ships_its_measured_front(variant):
+    """make study-fidelity wrote these, for the scenes as shipped and their well-posed variants
+    (--unpinned): each records how its scene was held, the paper's setting is measured, errors fall with
+    refinement at 5 Gauss points, and the marked front is exactly the Pareto-optimal set of the rows."""
+    from nma.fidelity import holds
+
+    scene = variant.removesuffix("_unpinned")
+    body = json.loads((DATA / f"{variant}.json").read_text())
+    assert body["scene"] == scene
+    assert body["holds"] == holds(held(scene, **({"pinned": []} if variant != scene else {})))
     rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in body["settings"]}
     assert (5, 5) in rows and (8, 5) in rows and (11, 5) in rows
     assert rows[(11, 5)]["gradient_error"] < rows[(8, 5)]["gradient_error"] < rows[(5, 5)]["gradient_error"]
@@ -86,6 +128,13 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
                                                                  expected.fidelity.quad_points)
     with pytest.raises(ConfigError, match="fidelity.tolerance must be at least"):
         validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=1e-9", "logger=none"))
+    # the well-posed variant reads its own front; a scene held otherwise has none, and stops before any work
+    settings = validate(compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "scene.pinned=[]",
+                                    "logger=none"))
+    assert settings.fidelity == choose(held(pinned=[]), 0.6).fidelity
+    assert "translation_unpinned.json" in choice_of(settings.fidelity, held(pinned=[])).reason
+    with pytest.raises(ConfigError, match="no front for scene translation held as this run holds it"):
+        validate(compose_cfg("task=translation", "fidelity=auto", "scene.pinned=[[0,0]]", "logger=none"))
     assert config.load("fidelity", "auto")["tolerance"] > 0
     assert Fidelity().tolerance is None  # presets are what they say
 

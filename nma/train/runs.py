@@ -134,7 +134,7 @@ def fidelity_record(disc, fidelity) -> dict:
     setting that was and why."""
     from ..fidelity import choice_of
 
-    choice = choice_of(fidelity, disc.spec.name)
+    choice = choice_of(fidelity, disc.spec)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
             "grading": disc.fidelity.grading, "dofs": disc.n_dofs,
             "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
