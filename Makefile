@@ -23,7 +23,7 @@ bench-kernels:      ## one Newton linearisation per scene, elements in cache-siz
 bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
 	$(PYTHON) experiments/bench_train.py
 
-study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/ (STUDY_ARGS=--unpinned: the well-posed variants')
+study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/ (STUDY_ARGS=--unpinned: the well-posed variants)
 	$(PYTHON) experiments/fidelity_study.py $(STUDY_ARGS)
 
 study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.* (STUDY_ARGS="--unpinned --grading 2")
