@@ -15,6 +15,7 @@ module knows of fidelity=auto.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import logging
 import os
@@ -38,52 +39,68 @@ class Choice:
     def record(self) -> dict:
         """What metrics.json keeps of the choice."""
         return {"ctrl_per_patch": self.fidelity.ctrl_per_patch, "quad_points": self.fidelity.quad_points,
-                "tolerance": self.tolerance, "measured": self.measured, "reason": self.reason}
+                "tolerance": self.tolerance, "measured": dict(self.measured), "reason": self.reason}
+
+
+def _front(path: Path) -> dict:
+    """A front as read (read again where the file changed since)."""
+    st = path.stat()
+    return _read(path, st.st_mtime_ns, st.st_size)
 
 
 @lru_cache(maxsize=None)
-def _front(path: Path) -> dict:
+def _read(path: Path, mtime_ns: int, size: int) -> dict:
     return json.loads(path.read_text())
 
 
+HOLDS = {"pinned": "scene.pinned", "supports": "scene.supports", "groups": "scene.groups (the actuated segments)"}
+
+
 def holds(spec: SceneSpec) -> dict:
-    """How a scene is held, as its front records it (JSON's lists and floats): its pinned points (in
-    order), supports (segment, fixed components) and actuated segments (segment, actuation, direction)."""
+    """How a scene is held, as its front records it (JSON's lists and floats, each list sorted, so that
+    the same body listed in another order is held the same): its pinned points, supports (segment,
+    fixed components) and actuated segments (actuation, segment, direction)."""
     pt = lambda p: [float(p[0]), float(p[1])]  # noqa: E731
     return {"pinned": sorted(pt(p) for p in spec.pinned),
-            "supports": [[pt(t.segment[0]), pt(t.segment[1]), sorted(int(c) for c in t.components)]
-                         for t in spec.supports],
-            "groups": [[pt(g.segment[0]), pt(g.segment[1]), int(g.actuation), pt(g.direction)] for g in spec.groups]}
-
-
-def _described(held: dict) -> str:
-    """The holds in words, for an error: the pins, and the supports where there are any."""
-    text = "scene.pinned=" + json.dumps(held["pinned"])
-    return text + (f", {len(held['supports'])} supports" if held["supports"] else "")
+            "supports": sorted([pt(t.segment[0]), pt(t.segment[1]), sorted(int(c) for c in t.components)]
+                               for t in spec.supports),
+            "groups": sorted([int(g.actuation), pt(g.segment[0]), pt(g.segment[1]), pt(g.direction)]
+                             for g in spec.groups)}
 
 
 def front_path(scene: str | SceneSpec, data: Path = DATA) -> Path:
     """The front fidelity=auto reads for a scene: by name, the front of the scene as shipped
-    (<name>.json); for a SceneSpec, the front measured with the scene held as it is.  ConfigError where
-    the scene has no front, or none of its fronts was measured so held."""
+    (<name>.json); for a SceneSpec, the front measured with the scene held as it is (<name>.json or one
+    of <name>_*.json: the well-posed variant's <name>_unpinned.json).  ConfigError where the scene has
+    no front, or none of its fronts was measured so held."""
     name = scene if isinstance(scene, str) else scene.name
-    paths = [p for p in (data / f"{name}.json", *sorted(data.glob(f"{name}_*.json")))
-             if p.is_file() and _front(p).get("scene") == name]
-    if not paths:
-        raise ConfigError(f"fidelity=auto has no measured front for scene {name} ({data / name}.json is missing): "
+    shipped = data / f"{name}.json"
+    if not shipped.is_file():
+        raise ConfigError(f"fidelity=auto has no measured front for scene {name} ({shipped} is missing): "
                           f"measure it with `python experiments/fidelity_study.py --scenes {name}` or choose a "
                           "preset (fidelity=paper, fast, fine)")
     if isinstance(scene, str):
-        return paths[0]
+        return shipped
+    variants = sorted(Path(p) for p in glob.glob(str(data / f"{glob.escape(name)}_*.json")))
+    paths = [shipped] + [p for p in variants if _front(p).get("scene") == name]
     held = holds(scene)
     match = [p for p in paths if _front(p).get("holds") == held]
-    if not match:
-        measured = "; ".join(f"{p.name}: {_described(_front(p)['holds'])}" for p in paths if "holds" in _front(p))
-        raise ConfigError(f"fidelity=auto has no front for scene {name} held as this run holds it "
-                          f"({_described(held)}, its supports and actuated segments as given): a front's errors "
-                          f"are of the body held as it was measured ({measured}).  Measure this one with "
-                          "experiments/fidelity_study.py, or choose a preset (fidelity=paper, fast, fine)")
-    return match[0]
+    if match:
+        return match[0]
+
+    def differs(p: Path) -> str:
+        other = _front(p).get("holds")
+        if other is None:
+            return f"{p.name} records no holds (measured before fronts did: measure it again)"
+        return p.name + ": " + ", ".join(f"{HOLDS[k]}={json.dumps(other[k])}" for k in HOLDS if other[k] != held[k])
+
+    raise ConfigError(f"fidelity=auto has no front for scene {name} held as this run holds it: a front's errors "
+                      "are of the body held as it was measured, and each front measured for it differs ("
+                      + "; ".join(differs(p) for p in paths) + "; this run: "
+                      + ", ".join(f"{HOLDS[k]}={json.dumps(held[k])}" for k in HOLDS
+                                  if any(_front(p).get("holds", {}).get(k) != held[k] for p in paths))
+                      + ").  Measure its front with experiments/fidelity_study.py, or choose a preset "
+                      "(fidelity=paper, fast, fine)")
 
 
 def fastest_within(rows: list[dict], tolerance: float) -> dict | None:
@@ -117,12 +134,16 @@ def choose(scene: str | SceneSpec, tolerance: float, data: Path = DATA) -> Choic
     return Choice(fidelity, tolerance, pick, reason)
 
 
-def resolve(fidelity: Fidelity, scene: SceneConfig) -> Fidelity:
+def resolve(fidelity: Fidelity, scene: SceneConfig, chosen: tuple[int, int] | None = None) -> Fidelity:
     """A concrete setting: `fidelity` itself, or with a tolerance set (fidelity=auto), the setting its
     scene's front picks, the tolerance kept as the record of what was asked (resolving it again picks
-    the same).  ConfigError where the scene has no front, no setting meets the tolerance, or the
-    setting's model would not fit in this machine's memory."""
-    if fidelity.tolerance is not None:
+    the same), or where `chosen` (control points, Gauss points) is given, that one: the setting a
+    trained run's checkpoint records auto chose for it, which fronts measured since must not change.
+    ConfigError where the scene has no front, no setting meets the tolerance, or the setting's model
+    would not fit in this machine's memory."""
+    if fidelity.tolerance is not None and chosen is not None:
+        fidelity = dataclasses.replace(fidelity, ctrl_per_patch=int(chosen[0]), quad_points=int(chosen[1]))
+    elif fidelity.tolerance is not None:
         choice = choose(scene.spec(), fidelity.tolerance)
         logging.getLogger("nma.fidelity").info(choice.reason)
         pick = choice.fidelity
@@ -156,5 +177,20 @@ def physical_memory() -> int | None:
 
 
 def choice_of(fidelity: Fidelity, scene: str | SceneSpec) -> Choice | None:
-    """For a setting fidelity=auto resolved: the measured row it came from and why (metrics.json, the log)."""
-    return None if fidelity.tolerance is None else choose(scene, fidelity.tolerance)
+    """For a setting fidelity=auto resolved: the measured row it came from and why (metrics.json, the log);
+    for one a trained run's checkpoint fixed (resolve's `chosen`) that today's fronts would not pick, or
+    have no front for, a Choice that says so and has no measured row."""
+    if fidelity.tolerance is None:
+        return None
+    try:
+        choice = choose(scene, fidelity.tolerance)
+    except ConfigError as exc:
+        choice, why = None, str(exc)
+    else:
+        why = choice.reason
+    if choice is not None and (choice.fidelity.ctrl_per_patch, choice.fidelity.quad_points) == (
+            fidelity.ctrl_per_patch, fidelity.quad_points):
+        return choice
+    return Choice(fidelity, fidelity.tolerance, {},
+                  f"fidelity=auto chose {fidelity.ctrl_per_patch} control points per patch, {fidelity.quad_points} "
+                  f"Gauss points when the run was trained (its checkpoint records it); today: {why}")

@@ -74,12 +74,48 @@ def test_auto_reads_the_front_of_the_scene_held_as_the_run_holds_it(known_front)
     assert choose(toy(unpinned), 0.4, known_front).fidelity.quad_points == 2  # its own: 5 x 2 at 0.30
     assert "toy_unpinned.json" in choose(toy(unpinned), 0.1, known_front).reason
     assert choose("toy", 0.4, known_front).fidelity.quad_points == 3  # by name: the scene as shipped
-    for other in (held(pinned=[[0, 0]]),
-                  dataclasses.replace(unpinned, supports=(Support(((0.0, 0.0), (5.0, 0.0)), (1,)),))):
-        with pytest.raises(ConfigError, match=r"no front for scene toy held as this run holds it \(scene.pinned="
-                                              r".*toy.json: scene.pinned=\[\[0.0, 0.0\].*toy_unpinned.json: "
-                                              r"scene.pinned=\[\]"):
-            choose(toy(other), 0.4, known_front)
+    # the same body listed in another order is held the same
+    assert choose(toy(dataclasses.replace(shipped, pinned=shipped.pinned[::-1], groups=shipped.groups[::-1])),
+                  0.4, known_front).fidelity.quad_points == 3
+    # held otherwise: refused, naming what differs from each front and how this run holds it
+    one_pin = held(pinned=[[0, 0]])
+    with pytest.raises(ConfigError, match=r"no front for scene toy held as this run holds it.*\(toy.json: "
+                                          r"scene.pinned=\[\[0.0, 0.0\], \[0.0, 25.0\].*; toy_unpinned.json: "
+                                          r"scene.pinned=\[\]; this run: scene.pinned=\[\[0.0, 0.0\]\]\)"):
+        choose(toy(one_pin), 0.4, known_front)
+    supported = dataclasses.replace(unpinned, supports=(Support(((0.0, 0.0), (5.0, 0.0)), (1,)),))
+    with pytest.raises(ConfigError, match=r"toy_unpinned.json: scene.supports=\[\]; this run: scene.pinned=\[\], "
+                                          r"scene.supports=\[\[\[0.0, 0.0\], \[5.0, 0.0\], \[1\]\]\]"):
+        choose(toy(supported), 0.4, known_front)
+    moved = dataclasses.replace(unpinned, groups=(dataclasses.replace(unpinned.groups[0], direction=(1.0, 0.0)),
+                                                  *unpinned.groups[1:]))
+    with pytest.raises(ConfigError, match=r"toy_unpinned.json: scene.groups \(the actuated segments\)="):
+        choose(toy(moved), 0.4, known_front)
+    # a front measured before fronts recorded how the scene was held is not read for a scene
+    (known_front / "toy_unpinned.json").write_text(json.dumps(paper))
+    with pytest.raises(ConfigError, match="toy_unpinned.json records no holds"):
+        choose(toy(unpinned), 0.4, known_front)
+
+
+def test_a_trained_run_keeps_the_setting_auto_chose_for_it():
+    """Re-evaluating or exporting a run (load_run) takes the setting its checkpoint records auto chose,
+    not what today's fronts would pick; its record says so where they pick otherwise."""
+    from nma.fidelity import choice_of
+    from nma.train.runs import chosen_fidelity, fingerprint, validate
+    from conftest import compose_cfg
+
+    cfg = compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none")
+    today = validate(cfg)
+    raw = {"config": json.dumps(fingerprint(dataclasses.replace(
+        today, fidelity=dataclasses.replace(today.fidelity, ctrl_per_patch=11, quad_points=2))))}
+    assert chosen_fidelity(raw) == (11, 2) and chosen_fidelity({"config": json.dumps(fingerprint(
+        validate(compose_cfg("task=translation", "logger=none"))))}) is None
+    trained = validate(cfg, chosen_fidelity(raw))
+    assert (trained.fidelity.ctrl_per_patch, trained.fidelity.quad_points, trained.fidelity.tolerance) == (11, 2, 0.6)
+    assert (today.fidelity.ctrl_per_patch, today.fidelity.quad_points) != (11, 2)
+    record = choice_of(trained.fidelity, held()).record()
+    assert record["measured"] == {} and "when the run was trained" in record["reason"]
+    assert choice_of(today.fidelity, held()).reason == choose(held(), 0.6).reason
 
 
 @pytest.mark.parametrize("variant", [*SCENES, *(f"{s}_unpinned" for s in SCENES)])

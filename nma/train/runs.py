@@ -12,10 +12,10 @@ from omegaconf import DictConfig
 from ..schema import TrainConfig, build
 
 
-def validate(cfg: DictConfig) -> TrainConfig:
-    """The composed config as checked settings, resolved (fidelity=auto: the measured setting it picks);
-    ConfigError names the field and its allowed range. Nothing is built: only the registries are
-    consulted for the component names."""
+def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainConfig:
+    """The composed config as checked settings, resolved (fidelity=auto: the measured setting it picks, or
+    the `chosen` one a trained run's checkpoint records); ConfigError names the field and its allowed
+    range. Nothing is built: only the registries are consulted for the component names."""
     from .. import models, tasks  # noqa: F401  (register components)
     from ..fidelity import resolve
     from ..registry import LINEAR_SOLVERS, MODELS, TASKS
@@ -25,7 +25,7 @@ def validate(cfg: DictConfig) -> TrainConfig:
     TASKS.get(settings.task.factory)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene),
+    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen),
                                contact=settings.contact.resolved(settings.scene))
 
 
@@ -47,12 +47,24 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
         raise ConfigError(f"run={run}: {exc}") from None
-    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg))
     found = checkpoint.load_latest(run / "checkpoints")
     if found is None:
         raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
     path, raw = found
+    settings = validate(OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg), chosen_fidelity(raw))
     return settings, raw["params"], path
+
+
+def chosen_fidelity(raw: dict) -> tuple[int, int] | None:
+    """The (control points, Gauss points) fidelity=auto chose for a run, as its checkpoint's fingerprint
+    records them (None where the run did not use auto): a run is re-evaluated and exported at the setting
+    it trained at, whatever fronts were measured since."""
+    import json
+
+    recorded = json.loads(raw.get("config") or "{}").get("fidelity") or {}
+    if recorded.get("tolerance") is None:
+        return None
+    return int(recorded["ctrl_per_patch"]), int(recorded["quad_points"])
 
 
 def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> None:
