@@ -17,7 +17,8 @@ from omegaconf import DictConfig
 from . import cli
 from .config import CONF_DIR
 from .schema import TrainConfig, register
-from .train.runs import check_init_from, check_run_dir, fidelity_record, fingerprint, make_trainer, validate
+from .train.runs import (check_init_from, check_run_dir, chosen_fidelity, fidelity_record, fingerprint, make_trainer,
+                         validate)
 
 log = logging.getLogger("nma.run")
 register()
@@ -67,6 +68,18 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     return evaluation.record
 
 
+def validate_in(cfg: DictConfig, run_dir: Path):
+    """The checked settings of a run in `run_dir`: a run resumed there keeps the setting fidelity=auto
+    chose for it (its checkpoint records it), whatever fronts were measured since."""
+    from .train import checkpoint
+
+    chosen = None
+    if str(cfg.trainer.get("resume", "false")).lower() != "false":
+        found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
+        chosen = chosen_fidelity(found[1]) if found else None
+    return validate(cfg, chosen)
+
+
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
     from omegaconf import OmegaConf
@@ -75,7 +88,7 @@ def hydra_main(cfg: DictConfig) -> None:
 
     run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
     with cli.exit_codes(World().rank, run_dir), cli.stop_on_signals() as stop:
-        train(validate(cfg), run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
+        train(validate_in(cfg, run_dir), run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
 
 
 def main() -> None:
@@ -86,7 +99,9 @@ def main() -> None:
     built: set[str] = set()  # the scenes and fidelities a sweep's jobs were discretised at
 
     def check(cfg, hydra_cfg, multirun: bool):
-        settings = validate(cfg)
+        # the job's directory (a sweep's: its subdirectory), before Hydra records its config there
+        run_dir = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+        settings = validate_in(cfg, run_dir)
         if multirun:  # what only the discretisation finds (a tracked point in a pore), for every job at once
             key = repr((settings.scene, settings.fidelity))
             if key not in built:
@@ -98,8 +113,6 @@ def main() -> None:
         world.shard(settings.trainer.batch_size)  # a batch must split evenly over the MPI ranks
         if settings.trainer.init_from:
             check_init_from(Path(settings.trainer.init_from), settings)
-        # the job's directory (a sweep's: its subdirectory), before Hydra records its config there
-        run_dir = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
         check_run_dir(run_dir, settings.trainer.resume, "a sweep job's directory" if multirun else "hydra.run.dir")
         if settings.trainer.resume == "true":  # does the checkpoint fit?
             found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)

@@ -97,9 +97,9 @@ def test_auto_reads_the_front_of_the_scene_held_as_the_run_holds_it(known_front)
         choose(toy(unpinned), 0.4, known_front)
 
 
-def test_a_trained_run_keeps_the_setting_auto_chose_for_it():
-    """Re-evaluating or exporting a run (load_run) takes the setting its checkpoint records auto chose,
-    not what today's fronts would pick; its record says so where they pick otherwise."""
+def test_a_trained_run_keeps_the_setting_auto_chose_for_it(tmp_path):
+    """Re-evaluating or exporting a run (load_run) and resuming it take the setting its checkpoint records
+    auto chose, not what today's fronts would pick; its record says so where they pick otherwise."""
     from nma.fidelity import choice_of
     from nma.train.runs import chosen_fidelity, fingerprint, validate
     from conftest import compose_cfg
@@ -113,6 +113,16 @@ def test_a_trained_run_keeps_the_setting_auto_chose_for_it():
     trained = validate(cfg, chosen_fidelity(raw))
     assert (trained.fidelity.ctrl_per_patch, trained.fidelity.quad_points, trained.fidelity.tolerance) == (11, 2, 0.6)
     assert (today.fidelity.ctrl_per_patch, today.fidelity.quad_points) != (11, 2)
+    # a run resumed in its directory keeps it too; a new one there (trainer.resume=false) chooses afresh
+    from nma.run import validate_in
+    from nma.train import checkpoint
+
+    run_dir = tmp_path / "run"
+    checkpoint.save(run_dir / "checkpoints", 5, {"step": 5, **raw})
+    resumed = compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none",
+                          "trainer.resume=true")
+    assert validate_in(resumed, run_dir).fidelity == trained.fidelity
+    assert validate_in(cfg, run_dir).fidelity == today.fidelity
     record = choice_of(trained.fidelity, held()).record()
     assert record["measured"] == {} and "when the run was trained" in record["reason"]
     assert choice_of(today.fidelity, held()).reason == choose(held(), 0.6).reason
