@@ -1,7 +1,7 @@
 """Fidelity study: what each discretisation setting costs and how wrong it is, for every scene.
 
     python experiments/fidelity_study.py                        # every scene (about an hour on 2 cores)
-    python experiments/fidelity_study.py --scenes translation --quick
+    python experiments/fidelity_study.py --scenes translation --quick   # a smoke run: outputs/studies/fidelity_quick
     python experiments/fidelity_study.py --replot               # tables and figures from the JSON only
     python experiments/fidelity_study.py --unpinned             # the well-posed variants' fronts
 
@@ -472,7 +472,9 @@ def main():
     ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
     ap.add_argument("--draws", type=int, default=3, help="actuation draws per setting (timing runs)")
     ap.add_argument("--quick", action="store_true", help="4 settings against an 11 x 5 reference (a smoke run)")
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "fidelity")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="where the results go (default outputs/studies/fidelity; with --quick, fidelity_quick, so "
+                         "that a smoke run leaves the study's results as they were)")
     ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
                     help="where the measured fronts for fidelity=auto go")
     ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
@@ -495,6 +497,8 @@ def main():
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
         return child(args)
+    if args.out is None:
+        args.out = ROOT / "outputs" / "studies" / ("fidelity_quick" if args.quick else "fidelity")
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
         name = variant(scene, args.grading, args.unpinned)
