@@ -69,15 +69,15 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
 
 
 def validate_in(cfg: DictConfig, run_dir: Path):
-    """The checked settings of a run in `run_dir`: a run resumed there keeps the setting fidelity=auto
-    chose for it (its checkpoint records it), whatever fronts were measured since."""
+    """The checked settings of a run in `run_dir`, and the checkpoint a resumed run continues from ((path,
+    raw state) or None): a run resumed there keeps the setting fidelity=auto chose for it (its checkpoint
+    records it), whatever fronts were measured since."""
     from .train import checkpoint
 
-    chosen = None
+    found = None
     if str(cfg.trainer.get("resume", "false")).lower() != "false":
         found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
-        chosen = chosen_fidelity(found[1]) if found else None
-    return validate(cfg, chosen)
+    return validate(cfg, chosen_fidelity(found[1]) if found else None), found
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
@@ -88,7 +88,7 @@ def hydra_main(cfg: DictConfig) -> None:
 
     run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
     with cli.exit_codes(World().rank, run_dir), cli.stop_on_signals() as stop:
-        train(validate_in(cfg, run_dir), run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
+        train(validate_in(cfg, run_dir)[0], run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
 
 
 def main() -> None:
@@ -101,7 +101,7 @@ def main() -> None:
     def check(cfg, hydra_cfg, multirun: bool):
         # the job's directory (a sweep's: its subdirectory), before Hydra records its config there
         run_dir = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
-        settings = validate_in(cfg, run_dir)
+        settings, found = validate_in(cfg, run_dir)
         if multirun:  # what only the discretisation finds (a tracked point in a pore), for every job at once
             key = repr((settings.scene, settings.fidelity))
             if key not in built:
@@ -115,7 +115,6 @@ def main() -> None:
             check_init_from(Path(settings.trainer.init_from), settings)
         check_run_dir(run_dir, settings.trainer.resume, "a sweep job's directory" if multirun else "hydra.run.dir")
         if settings.trainer.resume == "true":  # does the checkpoint fit?
-            found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
             if found:
                 checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
 

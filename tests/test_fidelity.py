@@ -121,8 +121,8 @@ def test_a_trained_run_keeps_the_setting_auto_chose_for_it(tmp_path):
     checkpoint.save(run_dir / "checkpoints", 5, {"step": 5, **raw})
     resumed = compose_cfg("task=translation", "fidelity=auto", "fidelity.tolerance=0.6", "logger=none",
                           "trainer.resume=true")
-    assert validate_in(resumed, run_dir).fidelity == trained.fidelity
-    assert validate_in(cfg, run_dir).fidelity == today.fidelity
+    assert validate_in(resumed, run_dir)[0].fidelity == trained.fidelity
+    assert validate_in(cfg, run_dir)[0].fidelity == today.fidelity
     record = choice_of(trained.fidelity, held()).record()
     assert record["measured"] == {} and "when the run was trained" in record["reason"]
     assert choice_of(today.fidelity, held()).reason == choose(held(), 0.6).reason
