@@ -1,4 +1,7 @@
 PYTHON ?= python3
+# pytest-xdist: one worker process per core, at most 4 (each holds its own JAX and simulators; the JAX
+# compilation cache is shared).  PARALLEL= runs the tests in one process.
+PARALLEL ?= -n auto --maxprocesses 4 --dist worksteal
 
 .PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
@@ -8,11 +11,11 @@ help:               ## list the targets (the default: plain `make` installs noth
 install:            ## install nma and its test dependencies (editable)
 	$(PYTHON) -m pip install -e ".[test]"
 
-test:               ## fast tests (the CI run)
-	$(PYTHON) -m pytest -q
+test:               ## fast tests (the CI run), on up to 4 worker processes
+	$(PYTHON) -m pytest -q $(PARALLEL)
 
 test-all:           ## every test, the slow physics checks included
-	$(PYTHON) -m pytest -q -m ""
+	$(PYTHON) -m pytest -q -m "" $(PARALLEL)
 
 bench:              ## solver speed per scene at the paper discretisation, linear backends -> outputs/bench/solver.json
 	$(PYTHON) experiments/bench_solver.py

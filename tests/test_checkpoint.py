@@ -12,6 +12,7 @@ from conftest import FAST, assert_same_params, copy_run, final_params, nma_run
 from nma.errors import ConfigError
 
 
+@pytest.mark.slow  # the fast suite resumes after SIGTERM (below) and from damaged checkpoints
 def test_kill_and_resume_matches_uninterrupted(tmp_path, translation_run):
     """SIGKILL after the first checkpoint, resume, and land on the uninterrupted run's parameters."""
     args = ["task=translation", "logger=none", "trainer.checkpoint_every=1", *FAST]

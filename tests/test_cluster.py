@@ -20,7 +20,7 @@ def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
 def test_mpi_rotation_experiment_lands_in_its_task_directory(tmp_path):
     cmd = ["mpiexec", "-n", "2", sys.executable, "-m", "nma.run", "experiment=repro_rotation_double",
            "trainer.steps=1", "trainer.batch_size=2", "trainer.eval_every=1", "task.eval_angles=2",
-           "trainer.progress=false"]
+           "trainer.progress=false", "trainer.animation_frames=0"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     runs = list((tmp_path / "outputs" / "runs").glob("*/*"))

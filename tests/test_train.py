@@ -72,7 +72,9 @@ def test_hdf5_fields_match_the_solution(translation_run):
     np.testing.assert_allclose(u_file, sol.u, atol=1e-9)
 
 
-@pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", "task.eval_angles=3", "mean_angle_error_deg"),
+# rotation_single is slow: the same task class as rotation_double, on another scene
+@pytest.mark.parametrize("task, eval_size, metric", [pytest.param("rotation_single", "task.eval_angles=3",
+                                                                   "mean_angle_error_deg", marks=pytest.mark.slow),
                                                       ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
                                                       ("shape_matching", "task.eval_targets=3", "shape_error"),
                                                       ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
