@@ -20,7 +20,7 @@ stable equilibrium, more is a saddle that a perturbation would leave; and whethe
 object (nma/geometry/validity.py: det F over the whole material, no boundary curve through another).
 Writes <scene>.json (every solve), <scene>.md (tables) and <scene>.png (heat maps: fraction of
 directions converged per material and design, and the time per solve relative to the scene's median
-converged solve).  Fidelity and solver are the scene's training defaults (paper fidelity, PARDISO).
+converged solve).  Fidelity and solver: the paper's 5 x 5 and PARDISO.
 """
 from __future__ import annotations
 

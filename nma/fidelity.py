@@ -135,12 +135,14 @@ def choose(scene: str | SceneSpec, tolerance: float, data: Path = DATA) -> Choic
 
 
 def resolve(fidelity: Fidelity, scene: SceneConfig, chosen: tuple[int, int] | None = None) -> Fidelity:
-    """A concrete setting: `fidelity` itself, or with a tolerance set (fidelity=auto), the setting its
+    """A concrete setting: `fidelity` itself (with fidelity=scene, what it leaves open from the scene's own
+    setting, Fidelity.of_scene), or with a tolerance set (fidelity=auto), the setting its
     scene's front picks, the tolerance kept as the record of what was asked (resolving it again picks
     the same), or where `chosen` (control points, Gauss points) is given, that one: the setting a
     trained run's checkpoint records auto chose for it, which fronts measured since must not change.
     ConfigError where the scene has no front, no setting meets the tolerance, or the setting's model
     would not fit in this machine's memory."""
+    fidelity = fidelity.of_scene(scene)
     if fidelity.tolerance is not None and chosen is not None:
         fidelity = dataclasses.replace(fidelity, ctrl_per_patch=int(chosen[0]), quad_points=int(chosen[1]))
     elif fidelity.tolerance is not None:

@@ -69,7 +69,13 @@ def _check_type(path: str, value: Any, tp) -> None:
             _check_type(f"{path}.{k}", v, item)
     elif origin is not None and type(None) in get_args(tp):  # Optional[X]
         if value is not None:
-            _check_type(path, value, [a for a in get_args(tp) if a is not type(None)][0])
+            _check_type(path, value, _bare(tp))
+
+
+def _bare(tp):
+    """X of Optional[X]; any other type as it is."""
+    args = get_args(tp)
+    return next(a for a in args if a is not type(None)) if type(None) in args else tp
 
 
 def _points(path: str, value: Any, kind: type) -> None:
@@ -112,7 +118,7 @@ class Schema:
                 spec = f.metadata["range"]
                 for x in _flat_numbers(value):
                     if not _in_range(float(x), spec):
-                        what = _kind(int if hints.get(f.name) is int else float)
+                        what = _kind(int if _bare(hints.get(f.name)) is int else float)
                         if isinstance(value, (list, tuple)):
                             what = "a list of numbers, each"
                         raise ConfigError(f"{path} must be {what} in {spec}, got {value!r}")

@@ -2,6 +2,7 @@
 import dataclasses
 import json
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -183,6 +184,48 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
         validate(compose_cfg("task=translation", "fidelity=auto", "scene.pinned=[[0,0]]", "logger=none"))
     assert config.load("fidelity", "auto")["tolerance"] > 0
     assert Fidelity().tolerance is None  # presets are what they say
+
+
+REPRO = {"translation": "repro_translation", "rotation_single": "repro_rotation_single",
+         "rotation_double": "repro_rotation_double", "shape_matching": "repro_shape_matching",
+         "digital_mnist": "repro_mnist_lookup"}
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_fidelity_scene_is_the_scenes_own_setting_measured_no_worse_than_the_papers(scene):
+    """fidelity=scene (the default) takes the scene's `fidelity` field: the setting its reproduction
+    trains at, whose measured gradient error (the shipped front) is no larger than the paper's 5 x 5."""
+    from nma.train.runs import fingerprint, validate
+    from conftest import compose_cfg
+
+    own = validate(compose_cfg(f"task={scene}", "logger=none")).fidelity
+    assert own == validate(compose_cfg(f"experiment={REPRO[scene]}")).fidelity
+    assert (own.ctrl_per_patch, own.quad_points) == (5, config.load("scene", scene)["fidelity"]["quad_points"])
+    rows = {(r["ctrl_per_patch"], r["quad_points"]): r["gradient_error"]
+            for r in json.loads((DATA / f"{scene}.json").read_text())["settings"]}
+    assert rows[(own.ctrl_per_patch, own.quad_points)] <= rows[(5, 5)]
+    paper = validate(compose_cfg(f"task={scene}", "fidelity=paper", "logger=none"))
+    assert (paper.fidelity.ctrl_per_patch, paper.fidelity.quad_points) == (5, 5)
+    # the resolved setting is the run's record; the scene's field is not compared again on resume
+    assert "fidelity" not in fingerprint(paper)["scene"] and fingerprint(paper)["fidelity"]["quad_points"] == 5
+
+
+def test_fidelity_scene_leaves_what_the_command_sets_and_checks_the_scenes_field():
+    from nma.train.runs import validate
+    from conftest import compose_cfg
+
+    half = validate(compose_cfg("task=translation", "fidelity.ctrl_per_patch=8", "logger=none")).fidelity
+    assert (half.ctrl_per_patch, half.quad_points) == (8, 2)  # the scene's quad_points, the command's control points
+    plain = validate(compose_cfg("task=strip_spread", "scene=strip", "logger=none")).fidelity
+    assert (plain.ctrl_per_patch, plain.quad_points) == (5, 5)  # a scene that states none: the paper's
+    with pytest.raises(ConfigError, match=re.escape("scene.fidelity.quad_points must be an integer in [2, 10], got 1")):
+        validate(compose_cfg("task=translation", "scene.fidelity={quad_points:1}", "logger=none"))
+    from nma.schema import scene_config
+
+    for own, message in [({"ctrl_per_patch": 6}, "scene.fidelity.ctrl_per_patch must be 3k + 2"),
+                         ({"grading": 2}, "scene.fidelity may set ctrl_per_patch and quad_points only, not ['grading']")]:
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            scene_config({**config.load("scene", "translation"), "fidelity": own})
 
 
 def test_random_design_stays_in_its_box_with_convex_cells():

@@ -28,10 +28,12 @@ _RESOLUTION = Resolution()  # the discretisation's defaults; the config declares
 class Fidelity(Schema):
     """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
     prefix: ClassVar[str] = "fidelity"
-    ctrl_per_patch: int = bounded(_RESOLUTION.ctrl_per_patch, "[5, 1000]",
-                                  doc="3k + 2: the 5 x 5 design net refined by knot insertion")
-    quad_points: int = bounded(_RESOLUTION.quad_points, "[2, 10]",
-                               doc="Gauss points per knot span and direction; 1 under-integrates")
+    # None (fidelity=scene, the commands' default): the scene's own (its `fidelity` field), else the
+    # paper's; resolve it first (nma.fidelity.resolve)
+    ctrl_per_patch: Optional[int] = bounded(_RESOLUTION.ctrl_per_patch, "[5, 1000]",
+                                            doc="3k + 2: the 5 x 5 design net refined by knot insertion")
+    quad_points: Optional[int] = bounded(_RESOLUTION.quad_points, "[2, 10]",
+                                         doc="Gauss points per knot span and direction; 1 under-integrates")
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
                                          "error allowed against the 14 x 5 reference; the scene's measured front "
                                          "then sets the two above")
@@ -43,11 +45,21 @@ class Fidelity(Schema):
                              "segments end (stress singularities); 1: uniform (docs/fidelity.md)")
 
     def check(self):
-        Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)
+        if self.ctrl_per_patch is not None and self.quad_points is not None:
+            Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)
         if self.tolerance is not None and self.grading != 1.0:
             raise ConfigError(f"fidelity.grading={self.grading:g} with fidelity=auto (fidelity.tolerance): the fronts it "
                               "picks from are measured with uniform knots; set fidelity.ctrl_per_patch and "
                               "fidelity.quad_points yourself, or leave fidelity.grading at 1")
+
+
+    def of_scene(self, scene) -> "Fidelity":
+        """These settings with what fidelity=scene leaves open (None) taken from the scene's own `fidelity`
+        (the discretisation its reproduction trains at), else the paper's 5 x 5."""
+        if self.ctrl_per_patch is not None and self.quad_points is not None:
+            return self
+        own = {"ctrl_per_patch": _RESOLUTION.ctrl_per_patch, "quad_points": _RESOLUTION.quad_points, **scene.fidelity}
+        return replace(self, **{k: own[k] if getattr(self, k) is None else getattr(self, k) for k in own})
 
 
 _CONTACT = ContactSettings()  # the contact model's defaults

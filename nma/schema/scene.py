@@ -126,6 +126,9 @@ class SceneConfig(Schema):
     # contact=auto (the commands' default) turns the pores' self-contact on for a scene that says so: one
     # whose pores close under its task's actuations, where without contact they pass through themselves
     contact: bool = False
+    # the discretisation its runs use where the command names none (fidelity=scene, the default): a
+    # mapping of fidelity.ctrl_per_patch and/or fidelity.quad_points; empty: the paper's 5 x 5
+    fidelity: Dict[str, int] = field(default_factory=dict)
 
     def rows(self) -> list[str]:
         return [r.replace(" ", "") for r in self.cells.split()]
@@ -170,6 +173,15 @@ class SceneConfig(Schema):
             b = self.breaks(axis)
             if len(b) != n + 1 or any(b1 <= b0 for b0, b1 in zip(b, b[1:])):
                 self.fail(f"{axis}_breaks", f"must be {n + 1} increasing values for {n} cells", b)
+        unknown = set(self.fidelity) - {"ctrl_per_patch", "quad_points"}
+        if unknown:
+            self.fail("fidelity", f"may set ctrl_per_patch and quad_points only, not {sorted(unknown)}", self.fidelity)
+        from .physics import Fidelity
+
+        try:
+            Fidelity(**self.fidelity)
+        except ConfigError as exc:
+            raise ConfigError(f"scene.{exc}") from None
         lo, hi = (self.radii_bounds + [None, None])[:2]
         if len(self.radii_bounds) != 2 or not lo < hi:
             self.fail("radii_bounds", "must be [lo, hi] with 0 < lo < hi < 1", self.radii_bounds)

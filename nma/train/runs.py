@@ -127,6 +127,7 @@ def fingerprint(s: TrainConfig) -> dict:
         del fidelity["grading"]  # the default (uniform knots): runs from before the option resume
     scene = asdict(s.scene)
     del scene["contact"]  # the scene's default for contact=auto: the resolved choice is s.contact, below
+    del scene["fidelity"]  # the scene's default for fidelity=scene: the resolved setting is s.fidelity
     return {"task": task, "scene": scene, "model": asdict(s.model),
             "fidelity": fidelity, "material": material, "optim": asdict(s.optim),
             "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
