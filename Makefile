@@ -1,7 +1,7 @@
 PYTHON ?= python3
 # pytest-xdist: one worker process per core, at most 4 (each holds its own JAX and simulators; the JAX
-# compilation cache is shared).  PARALLEL= runs the tests in one process.
-PARALLEL ?= -n auto --maxprocesses 4 --dist worksteal
+# compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
+PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
 .PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 

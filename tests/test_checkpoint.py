@@ -71,6 +71,24 @@ def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translatio
     assert (d / ".hydra" / "config.yaml").read_text() == recorded  # the run's record is untouched
 
 
+def test_a_run_trained_at_the_papers_default_is_told_to_add_fidelity_paper():
+    """A shape-matching run from before fidelity=scene trained at 5 x 5; resumed with today's default
+    (the scene's 5 x 3) it stops naming the field and the override that resumes it."""
+    import json
+
+    from nma.train.checkpoint import check_fingerprint
+
+    def fp(quad, **extra):
+        return {"fidelity": {"ctrl_per_patch": 5, "quad_points": quad}, "trainer": {"seed": 0}, **extra}
+
+    with pytest.raises(ConfigError, match=r"fidelity.quad_points: 5 -> 3\) \(it trained at the paper's 5 x 5: add "
+                                          r"fidelity=paper\)"):
+        check_fingerprint("c", {"config": json.dumps(fp(5))}, fp(3))
+    with pytest.raises(ConfigError) as other:  # another change beside it: no hint
+        check_fingerprint("c", {"config": json.dumps(fp(5))}, fp(3, trainer={"seed": 1}))
+    assert "add fidelity=paper" not in str(other.value)
+
+
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])
 def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translation_run, caplog, damage):
     from nma.train import checkpoint

@@ -19,6 +19,9 @@ class Resolution:
     grading: float = 1.0             # knot spacing towards the patch corners (bspline.span_breaks); 1: uniform
 
     def __post_init__(self):
+        if self.ctrl_per_patch is None or self.quad_points is None:  # fidelity=scene's open halves
+            raise ValueError("fidelity=scene leaves the discretisation to the scene: resolve it first "
+                             "(nma.fidelity.resolve)")
         if self.ctrl_per_patch < 5 or (self.ctrl_per_patch - 2) % 3:
             raise ConfigError(f"fidelity.ctrl_per_patch must be 3k + 2 with k >= 1 (5, 8, 11, ...: one knot per "
                               f"design span), got {self.ctrl_per_patch}")

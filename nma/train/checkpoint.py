@@ -91,9 +91,16 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
             for k in sorted(old.keys() | new.keys()) if old.get(k) != new.get(k)]
     if diff:
         changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
-        # contact=auto turned contact on for a scene whose runs trained without it before it existed
-        hint = (" (it trained without contact: add contact=off)" if all(k.startswith("contact.") for k in changed)
-                and not any(k.startswith("contact.") for k in old) else "")
+        # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
+        # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5
+        hints = []
+        if any(k.startswith("contact.") for k in changed) and not any(k.startswith("contact.") for k in old):
+            hints.append("it trained without contact: add contact=off")
+        resolution = {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
+        if changed & resolution and all(old.get(k) == 5 for k in resolution):
+            hints.append("it trained at the paper's 5 x 5: add fidelity=paper")
+        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution
+                                                         for k in changed) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "
                           "or set trainer.resume=force to continue anyway")
