@@ -70,6 +70,15 @@ def test_hdf5_fields_match_the_solution(translation_run):
     sol = sim.solve(geom, jnp.asarray(d), material(0.07, 0.3))
     np.testing.assert_allclose(X_file, sim.reference_points(geom), atol=1e-12)
     np.testing.assert_allclose(u_file, sol.u, atol=1e-9)
+    # the run writes its fields through one compiled sampler; the mesh and det F are those of the eager path
+    # (nma.simulate's, one state)
+    from nma.geometry.sampling import sample_jacobian, sample_positions
+
+    with h5py.File(translation_run / "fields" / "eval_001.h5") as f:
+        ref, cur, J, s = f["mesh/reference"][()], f["mesh/deformed"][()], f["fields/J"][()], f.attrs["samples_per_side"]
+    np.testing.assert_allclose(ref, np.asarray(sample_positions(sim.disc, X_file, s)).reshape(-1, 2), atol=1e-12)
+    np.testing.assert_allclose(cur, np.asarray(sample_positions(sim.disc, X_file + u_file, s)).reshape(-1, 2), atol=1e-12)
+    np.testing.assert_allclose(J, np.asarray(sample_jacobian(sim.disc, X_file, u_file, s)).reshape(-1), atol=1e-12)
 
 
 # rotation_single is slow: the same task class as rotation_double, on another scene

@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-from ..io.fields import write_fields  # noqa: E402
+from ..io.fields import sampler, write_fields  # noqa: E402
 from .trainer import Evaluation  # noqa: E402
 from ..viz.plot import ACTUATED, MATERIAL, TRACKED, draw_actuated, draw_shape  # noqa: E402
 
@@ -33,13 +33,13 @@ def write_metrics(run_dir: Path, task, evaluation: Evaluation, history: list, ex
 def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int) -> list[Path]:
     """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory`."""
     X, d, u, out, ts, ok = evaluation.X, evaluation.d, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
-    paths = []
+    paths, sample = [], sampler(sim.disc, X, samples)
     for i in range(len(ts)):
         if not ok[i]:
             continue
         h5, _ = write_fields(directory / f"eval_{i:03d}.h5", sim.disc, X, u[i], samples,
                              attrs={"descriptor": np.asarray(ts[i]), "actuation": np.asarray(d[i]),
-                                    "observed": np.asarray(out[i])})
+                                    "observed": np.asarray(out[i])}, sample=sample)
         paths.append(h5)
     return paths
 
