@@ -44,22 +44,26 @@ class Fidelity(Schema):
                              "corner as (i/k)^grading in each side's outer thirds, where supports and actuated "
                              "segments end (stress singularities); 1: uniform (docs/fidelity.md)")
 
+    @property
+    def concrete(self) -> bool:
+        """Both halves set (not left to the scene by fidelity=scene)."""
+        return self.ctrl_per_patch is not None and self.quad_points is not None
+
     def check(self):
-        if self.ctrl_per_patch is not None and self.quad_points is not None:
+        if self.concrete:
             Resolution.of(self)  # the discretisation's own rules (3k + 2 control points)
         if self.tolerance is not None and self.grading != 1.0:
             raise ConfigError(f"fidelity.grading={self.grading:g} with fidelity=auto (fidelity.tolerance): the fronts it "
                               "picks from are measured with uniform knots; set fidelity.ctrl_per_patch and "
                               "fidelity.quad_points yourself, or leave fidelity.grading at 1")
 
-
     def of_scene(self, scene) -> "Fidelity":
         """These settings with what fidelity=scene leaves open (None) taken from the scene's own `fidelity`
         (the discretisation its reproduction trains at), else the paper's 5 x 5."""
-        if self.ctrl_per_patch is not None and self.quad_points is not None:
+        if self.concrete:
             return self
         own = {"ctrl_per_patch": _RESOLUTION.ctrl_per_patch, "quad_points": _RESOLUTION.quad_points, **scene.fidelity}
-        return replace(self, **{k: own[k] if getattr(self, k) is None else getattr(self, k) for k in own})
+        return replace(self, **{k: v for k, v in own.items() if getattr(self, k) is None})
 
 
 _CONTACT = ContactSettings()  # the contact model's defaults
