@@ -4,6 +4,7 @@
     python experiments/stability_map.py --scenes translation --quick
     python experiments/stability_map.py --contact --out outputs/studies/stability_contact
     python experiments/stability_map.py --formulation mixed --nus 0.499 --out outputs/studies/stability_mixed
+    python experiments/stability_map.py --corrector trust_region --nus 0.499 --out outputs/studies/stability_trust
 
 Per scene, every combination of
   material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from nma.mechanics.options import FORMULATIONS
+from nma.solver.options import CORRECTORS
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
@@ -75,7 +77,8 @@ def designs(sim, rng) -> dict[str, dict]:
 
 
 def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
-              formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None) -> dict:
+              formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None,
+              corrector: str = "line_search") -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -86,7 +89,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     from nma.solver.newton import CONVERGED, STATUS_TEXT
 
     rng = np.random.default_rng(seed)
-    solver = {"escape_saddles": escape_saddles}
+    solver = {"escape_saddles": escape_saddles, "corrector": corrector}
     if max_iters is not None:  # else the solver's default budget
         solver["max_iters"] = max_iters
     sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"), solver,
@@ -133,7 +136,8 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
               f"{'' if state is None or state.valid else '(NOT PHYSICAL: ' + '; '.join(state.problems()) + ') '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
-            "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else ""),
+            "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
+            + (f", {corrector}" if corrector != "line_search" else ""),
             "max_iters": sim.options.max_iters,
             "contact": contact, "formulation": formulation,
             "records": records}
@@ -231,6 +235,8 @@ def main():
     ap.add_argument("--formulation", default="displacement", choices=FORMULATIONS,
                     help="material.formulation (write to a separate --out to compare)")
     ap.add_argument("--nus", nargs="+", type=float, default=NUS, help="Poisson's ratios to map")
+    ap.add_argument("--corrector", default="line_search", choices=CORRECTORS,
+                    help="solver.corrector (write to a separate --out to compare)")
     ap.add_argument("--max-iters", type=int, help="solver.max_iters, Newton's budget per solve (default: the solver's)")
     args = ap.parse_args()
     if args.replot:
@@ -244,7 +250,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
         result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
-                           nus=args.nus, max_iters=args.max_iters)
+                           nus=args.nus, max_iters=args.max_iters, corrector=args.corrector)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "

@@ -81,6 +81,7 @@ BAD_SIMULATE = [
     ("scene.groups.0.direction=[0,0]", "scene.groups.direction of group left must not be [0, 0]"),
     ("scene.pinned=[[0,0]] scene.groups=[]", "nothing stops it rotating about (0, 0)"),
     ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
+    ("solver.corrector=dogleg", "solver.corrector must be one of ['line_search', 'trust_region'], got 'dogleg'"),
     ("scene.corner_box=2.5", "scene.corner_box must be < half the smallest cell (2.5), got 2.5"),
 ]
 

@@ -168,6 +168,35 @@ def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(
     np.testing.assert_allclose(X + sols["fail fast"].u, X + sols["patient"].u, atol=1e-8)
 
 
+def test_trust_region_corrector_reaches_the_same_equilibrium_in_fewer_iterations(simulator):
+    """solver.corrector=trust_region, nearly incompressible (nu = 0.499) at full actuation, the case
+    above: where the line search shortens the whole Newton step because a soft mode's part of it is
+    far too long, the trust region's shift damps that part only (nma/solver/newton.py, _trust_region).
+    It reaches the line search's equilibrium, in fewer iterations."""
+    line_search = simulator("translation", quad_points=3)
+    trust = Simulator(line_search.disc, "pardiso", NewtonOptions(corrector="trust_region"))
+    d, mat = jnp.array([4.0, 4.0]), material(0.07, 0.499)
+    sols = {name: sim.solve(sim.init_params(), d, mat) for name, sim in (("line search", line_search),
+                                                                         ("trust region", trust))}
+    assert sols["trust region"].info.iterations < sols["line search"].info.iterations
+    X = np.asarray(trust.reference_points(trust.init_params()))
+    np.testing.assert_allclose(X + sols["trust region"].u, X + sols["line search"].u, atol=1e-8)
+
+
+def test_trust_region_solve_has_the_line_search_gradient():
+    """The adjoint is of the converged state (its factor is taken without the trust region's shift), so
+    the gradient of a quantity of the equilibrium does not depend on the corrector that reached it.
+    Both solve to 1e-12 (the default 1e-10 leaves the two states, and so their gradients, 3e-8 apart)."""
+    disc = discretise(scene_from_config(SMALL))
+    sims = [Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12, corrector=c)) for c in ("line_search", "trust_region")]
+    mat = material(0.07, 0.45)
+    X = sims[0].reference_points(sims[0].init_params())
+    grads = [jax.grad(lambda d, sim=sim: sim.tracked(X, sim.equilibrium(X, d, mat)[0])["centre"][0])(jnp.array([2.0, -1.5]))
+             for sim in sims]
+    assert np.all(np.abs(np.asarray(grads[0])) > 1e-6)  # both actuations move the centre
+    np.testing.assert_allclose(grads[1], grads[0], rtol=1e-8)
+
+
 def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
     """PARDISO's LDL^T inertia against a dense eigendecomposition, on the Hessian at a converged state
     (stable: none negative) and on the same element blocks shifted down until many are negative."""

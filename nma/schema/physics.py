@@ -6,7 +6,7 @@ from typing import ClassVar, Optional
 
 from ..geometry.options import GRADING_MAX, Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
-from ..solver.options import WARM_START_NEEDS_HOST, NewtonOptions
+from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
 from ..settings import Schema, bounded, choice
 
@@ -124,6 +124,10 @@ class SolverConfig(Schema):
     max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
                                     doc="heavily damped corrector steps in a row that cut the load step at once "
                                         "(Newton's model does not hold there)")
+    corrector: str = choice(_NEWTON.corrector, CORRECTORS,
+                            doc="a corrector step at fixed load: the Newton step shortened by a line search, or "
+                                "a trust region on the energy's quadratic model (its diagonal shift adapted), "
+                                "which damps a soft mode's part of the step only (docs/stability.md)")
     contact_exact_below: float = bounded(_NEWTON.contact_exact_below, "[0, 1]",
                                          doc="with contact, Newton's correctors use contact's normal stiffness "
                                              "only (positive semi-definite) until the residual falls below this "
