@@ -184,9 +184,10 @@ def test_trust_region_corrector_reaches_the_same_equilibrium_in_fewer_iterations
 
 
 def test_trust_region_solve_has_the_line_search_gradient():
-    """The adjoint is of the converged state (its factor is taken without the trust region's shift), so
-    the gradient of a quantity of the equilibrium does not depend on the corrector that reached it.
-    Both solve to 1e-12 (the default 1e-10 leaves the two states, and so their gradients, 3e-8 apart)."""
+    """The adjoint solves with the Hessian at the converged state (not the trust region's shifted
+    matrix), so the gradient of a quantity of the equilibrium does not depend on the corrector that
+    reached it.  Both solve to 1e-12 (the default 1e-10 leaves the two states, and so their gradients,
+    3e-8 apart)."""
     disc = discretise(scene_from_config(SMALL))
     sims = [Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12, corrector=c)) for c in ("line_search", "trust_region")]
     mat = material(0.07, 0.45)
@@ -195,6 +196,43 @@ def test_trust_region_solve_has_the_line_search_gradient():
              for sim in sims]
     assert np.all(np.abs(np.asarray(grads[0])) > 1e-6)  # both actuations move the centre
     np.testing.assert_allclose(grads[1], grads[0], rtol=1e-8)
+
+
+def test_trust_region_ratio_of_a_quadratic_energy_is_one_and_round_off_is_taken():
+    """_trust_region's test on E(u) = g.u + u^T K u / 2, whose quadratic model is exact: any step's
+    actual fall over its predicted fall is 1.  A step whose predicted fall is below the energy's
+    round-off is taken where the energy does not rise beyond it, and counts as agreeing with the model
+    (read as noise it would raise the shift just before convergence)."""
+    from nma.solver.newton import _trust_region
+
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((6, 6))
+    K, g = A @ A.T + 6 * np.eye(6), rng.standard_normal(6)
+    energy = lambda u: jnp.dot(g, u) + 0.5 * u @ K @ u  # noqa: E731
+    step = -np.linalg.solve(K + 0.3 * np.eye(6), g)  # a shifted Newton step from u = 0
+    for a in (1.0, 0.4):
+        _, ok, ratio = _trust_region(energy, jnp.zeros(6), step, 0.0, g @ step, step @ K @ step, a)
+        assert bool(ok) and float(ratio) == pytest.approx(1.0, rel=1e-12)
+    # a step that raises the energy is rejected
+    _, ok, ratio = _trust_region(energy, jnp.zeros(6), -step, 0.0, -(g @ step), step @ K @ step, 1.0)
+    assert not bool(ok) and float(ratio) < 0
+    # at E0 = 1e6 a step predicted to lower it by 1e-9 is round-off: taken, agreement 1
+    E = lambda u: 1e6 + 1e-9 * energy(u) / abs(float(energy(step)))  # noqa: E731
+    _, ok, ratio = _trust_region(E, jnp.zeros(6), step, 1e6, 1e-9 * (g @ step) / abs(float(energy(step))),
+                                 1e-9 * (step @ K @ step) / abs(float(energy(step))), 1.0)
+    assert bool(ok) and float(ratio) == 1.0
+
+
+def test_trust_region_traced_and_host_solves_agree():
+    """The same corrector as one traced loop (the dense backend, the GPU path) and driven from the host
+    (PARDISO): the same equilibrium; and a misspelt corrector is refused, not run as the line search."""
+    disc = discretise(scene_from_config(SMALL))
+    opts = NewtonOptions(corrector="trust_region")
+    sols = [Simulator(disc, linear, opts).solve(Simulator(disc, linear, opts).init_params(), jnp.array([2.0, -1.5]),
+                                                material(0.07, 0.45)) for linear in ("dense", "pardiso")]
+    np.testing.assert_allclose(sols[0].u, sols[1].u, atol=1e-9)
+    with pytest.raises(ValueError, match=r"corrector must be one of \['line_search', 'trust_region'\], got 'trust-region'"):
+        NewtonOptions(corrector="trust-region")
 
 
 def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():

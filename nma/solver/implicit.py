@@ -301,8 +301,9 @@ class HostNewton:
                 s = self._hold(lin)
                 break
             factor, shared = shared or ws, None
+            # a converged state's factor is of K itself (its inertia; the adjoint's), else of the step's K + shift I
             if factor is ws:
-                ws.factorise(lin.kel, 0.0 if next_status != RUNNING else float(shift))
+                ws.factorise(lin.kel, 0.0 if next_status != RUNNING or check else float(shift))
             if check:
                 checked.add(int(steps))
                 negative = factor.inertia if factor is not ws else self.backend.inertia(ws)
@@ -313,6 +314,8 @@ class HostNewton:
                 if next_status != RUNNING:
                     s = self._hold(lin)
                     break
+                if factor is ws and float(shift):  # the predictor that follows is solved with the kept shift
+                    ws.factorise(lin.kel, float(shift))
             du = factor.solve(lin.rhs)
             with kernels():
                 s, lin = self._step(p, lin, du)

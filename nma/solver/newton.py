@@ -9,7 +9,9 @@ Each iteration assembles the force and element tangents at the current state and
   corrector  (at fixed load): Newton step with backtracking Armijo line search on the energy, the
              step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step);
              with contact, far from equilibrium the tangent takes contact's normal stiffness only
-             (_contact_normal).
+             (_contact_normal).  With corrector="trust_region" the step of K + shift I instead, taken
+             or rejected by how well the energy's quadratic model predicted its fall, the shift adapted
+             (_trust_region, _next_trust_shift; the predictor is then solved with the kept shift).
 A load step fails when its line search cannot decrease the energy, when several corrector steps in a
 row are cut to a small fraction of the Newton step (the increment is beyond the reach of Newton's
 model: fail fast), or when it takes too many iterations; then the state returns to the last converged
@@ -118,7 +120,7 @@ class _State(NamedTuple):
     k_ref: jnp.ndarray
     rnorm: jnp.ndarray
     history: jnp.ndarray
-    damped: jnp.ndarray   # heavily damped corrector steps in a row in this load step
+    damped: jnp.ndarray   # heavily damped corrector steps (trust region: rejected steps) in a row in this load step
     shift_memory: jnp.ndarray  # the last diagonal shift that gave a descent direction in this solve
     f_ref: jnp.ndarray    # the force scale of the full load (the tolerance is rtol times it, plus atol's)
 
@@ -336,9 +338,11 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     lam_new = jnp.where(moved & predictor, s.lam + a_load * dlam, jnp.where(cut, s.lam_conv, s.lam))
     dlam_cut = 0.5 * jnp.where(predictor, dlam, s.lam - s.lam_conv)
     dlam_new = jnp.where(cut, dlam_cut, jnp.where(predictor, a_load * dlam, dlam))
-    shift_new, shift_memory = _next_shift(s, du, slope, finite, descent, cut)
     if trust:
-        shift_new, shift_memory = _next_trust_shift(s, shift_new, step, curvature, a, ok, descent, agreement, cut)
+        shift_new, shift_memory = _next_trust_shift(s, _retry_shift(s, du, slope, finite), step, curvature, a, ok,
+                                                    descent, agreement, cut)
+    else:
+        shift_new, shift_memory = _next_shift(s, du, slope, finite, descent, cut)
     status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
                             step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
@@ -374,8 +378,11 @@ def _trust_region(energy, u, step, E0, slope, curvature, a):
     predicted = -(a * slope + 0.5 * a * a * curvature)
     Ea = energy(u + a * step)
     ratio = (E0 - Ea) / jnp.maximum(predicted, slack)
-    ok = jnp.isfinite(Ea) & (a > 0) & ((ratio >= TRUST_ACCEPT) | ((predicted <= slack) & (Ea <= E0 + slack)))
-    return a, ok, jnp.where(jnp.isfinite(ratio), ratio, -jnp.inf)
+    roundoff = jnp.abs(predicted) <= slack
+    ok = jnp.isfinite(Ea) & (a > 0) & ((ratio >= TRUST_ACCEPT) | (roundoff & (Ea <= E0 + slack)))
+    # a step taken on the round-off test agreed with the model as far as the energy can tell: its ratio
+    # is noise, and read as poor it would raise the shift just before convergence
+    return a, ok, jnp.where(roundoff & ok, 1.0, jnp.where(jnp.isfinite(ratio), ratio, -jnp.inf))
 
 
 def _cut_trust_region(s: _State, opts: NewtonOptions, ok):
@@ -385,10 +392,7 @@ def _cut_trust_region(s: _State, opts: NewtonOptions, ok):
     doubled the iterations of the stability map's nu = 0.499 translation cells (1,843 against 824)."""
     step_it = jnp.where(s.predictor, 0, s.step_it + 1)
     rejected = jnp.where(s.predictor | ok, 0, s.damped + 1)
-    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
-    finishing = ((recent <= FINISHING_RESIDUAL * _step_tolerance(opts, s.lam, s.tol))
-                 & (step_it < opts.max_step_iters + FINISHING_ITERS))
-    cut = ((step_it >= opts.max_step_iters) & ~finishing) | (rejected >= TRUST_REJECTIONS)
+    cut = ((step_it >= opts.max_step_iters) & ~_finishing(s, opts, step_it)) | (rejected >= TRUST_REJECTIONS)
     return step_it, rejected, cut
 
 
@@ -397,9 +401,10 @@ def _next_trust_shift(s: _State, retry, step, curvature, a, ok, descent, agreeme
     where the model predicted the step badly, the J > 0 bound cut it short or it was rejected, lowered
     fourfold where the full step agreed with the model; kept through a predictor (the soft mode that
     called for it is still there in the next load step), and after a cut the last one that was taken.
-    The first raise is the stiffness along the rejected step (its Rayleigh quotient): that halves the
-    step's soft part and leaves the stiff part.  After a direction that did not descend (K + shift I
-    is indefinite) the shift is at least _next_shift's `retry`, sized from the curvature it revealed."""
+    A raise goes to at least the stiffness along the step (its Rayleigh quotient): where one soft mode
+    dominates the step, that halves its part and leaves the stiff part.  After a direction that did not
+    descend (K + shift I is indefinite) the shift is at least _retry_shift's, sized from the curvature
+    it revealed."""
     dd = jnp.dot(step, step)
     along = jnp.where(dd > 0, jnp.abs(curvature) / jnp.where(dd > 0, dd, 1.0), 0.0)
     raised = jnp.maximum(jnp.maximum(4.0 * s.shift, along), 1e-8 * s.k_ref)
@@ -422,20 +427,30 @@ def _cut(s: _State, opts: NewtonOptions, a, ok, flipped, descent):
     # a non-descent direction is retried with a larger diagonal shift first (no cut)
     # ...and a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations
     # from converging (the residual need not fall monotonically there): it gets them
-    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
-    finishing = ((recent <= FINISHING_RESIDUAL * _step_tolerance(opts, s.lam, s.tol))
-                 & (step_it < opts.max_step_iters + FINISHING_ITERS))
-    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing) | (damped >= opts.max_damped_steps)
+    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~_finishing(s, opts, step_it)) | (damped >= opts.max_damped_steps)
     return step_it, damped, cut
 
 
-def _next_shift(s: _State, du, slope, finite, descent, cut):
-    """The diagonal shift of the next iteration, and the last one that gave a descent direction."""
+def _finishing(s: _State, opts: NewtonOptions, step_it):
+    """Whether a load step past max_step_iters is a few iterations from converging: its residual is, or
+    just was, within FINISHING_RESIDUAL x the tolerance (it need not fall monotonically there)."""
+    recent = jnp.minimum(s.rnorm, s.history[jnp.maximum(s.it - 1, 0)])
+    return ((recent <= FINISHING_RESIDUAL * _step_tolerance(opts, s.lam, s.tol))
+            & (step_it < opts.max_step_iters + FINISHING_ITERS))
+
+
+def _retry_shift(s: _State, du, slope, finite):
+    """The shift after a direction du that did not descend (slope = g.du >= 0)."""
     # (K + shift) du = -g with slope = g.du >= 0: du^T K du / du^T du = -slope / |du|^2 - shift < 0 bounds
     # the lowest eigenvalue of K from above; the retry's shift must at least exceed it
     dd = jnp.dot(du, du)
     rayleigh = jnp.where(finite & (dd > 0), -slope / jnp.where(dd > 0, dd, 1.0) - s.shift, 0.0)
-    retry = jnp.maximum(jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref))
+    return jnp.maximum(jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref))
+
+
+def _next_shift(s: _State, du, slope, finite, descent, cut):
+    """The diagonal shift of the next iteration, and the last one that gave a descent direction."""
+    retry = _retry_shift(s, du, slope, finite)
     shift_new = jnp.where(cut, 0.0, jnp.where(
         ~descent, retry, jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
     shift_memory = jnp.where(descent & ~s.predictor & (s.shift > 0), s.shift, s.shift_memory)

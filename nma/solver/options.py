@@ -52,3 +52,7 @@ class NewtonOptions:
     warm_pool: int = 64
     warm_iters: int = 30
     warm_audit: int = 16
+
+    def __post_init__(self):
+        if self.corrector not in CORRECTORS:  # the config checks it too; library callers get the same words
+            raise ValueError(f"corrector must be one of {list(CORRECTORS)}, got {self.corrector!r}")
