@@ -310,21 +310,21 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     a0 = jnp.minimum(1.0, opts.step_fraction * jnp.minimum(material, walls))
 
     trust = opts.corrector == "trust_region"
-    curvature = eqs.curvature(lin.kel, step) if trust else jnp.zeros_like(slope)
 
     def predict(_):
-        return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True), jnp.ones_like(slope)
+        return a0, finite & (a0 * dlam >= opts.min_increment), jnp.asarray(True), jnp.ones_like(slope), jnp.zeros_like(slope)
 
     def correct(_):
         descent = finite & (slope < 0)
         energy = lambda u: eqs.potential(p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat)  # noqa: E731
+        curvature = eqs.curvature(lin.kel, step) if trust else jnp.zeros_like(slope)  # the model's, correctors only
         if trust:  # the bounded step, taken where the energy's quadratic model predicted its fall
             a, ok, agreement = _trust_region(energy, s.u, step, E0, -jnp.abs(slope), curvature, a0)
         else:  # bounded line search on the energy at fixed load
             (a, ok), agreement = _line_search(energy, opts, s.u, step, E0, -jnp.abs(slope), a0), jnp.ones_like(slope)
-        return a, (descent | flipped) & ok, descent, agreement
+        return a, (descent | flipped) & ok, descent, agreement, curvature
 
-    a, ok, descent, agreement = jax.lax.cond(predictor, predict, correct, None)
+    a, ok, descent, agreement, curvature = jax.lax.cond(predictor, predict, correct, None)
     if trust:
         step_it, damped, cut = _cut_trust_region(s, opts, ok)
     else:
