@@ -75,20 +75,23 @@ def test_the_energy_is_infinite_and_the_step_bounded_where_a_check_point_inverts
     assert np.isinf(float(strain_energy(on, quad, u, mat))) and np.isfinite(float(strain_energy(off, quad, u, mat)))
     du = jnp.zeros_like(X).at[k].set(X[patch[3, 2]] - X[k])
 
-    def max_step(disc):  # the step bound Newton takes: the smaller of the material's and the walls'
-        return float(jnp.minimum(*step_bounds(disc, quad, jnp.zeros_like(X), du)))
+    def max_step(disc, quad):  # the step bound Newton takes: the smallest of the three
+        return float(min(step_bounds(disc, quad, jnp.zeros_like(X), du)))
 
-    a_on, a_off = max_step(on), max_step(off)
+    a_on, a_off = max_step(on, quad), max_step(off, quadrature(off, X))  # off: Gauss points only
+    assert max_step(off, quadrature(off, X, check_points=True)) == a_on  # Newton's element bound, no barrier
     assert a_on < 1.6 < a_off
     assert check_J(on, quad, a_on * du) == pytest.approx(0.0, abs=1e-9) and check_J(on, quad, 0.99 * a_on * du) > 0
 
 
 def test_a_solve_with_the_barrier_is_a_physical_state(simulator, barrier_simulator):
-    """conftest.barrier_case: without the barrier its equilibrium is inverted between Gauss points; with
-    it, det F > 0 over the whole material, J_hat reached at the check points from above."""
+    """conftest.barrier_case: without the barrier (and without Newton's element bound, which fails that
+    solve: test_solver) its equilibrium is inverted between Gauss points; with it, det F > 0 over the
+    whole material, J_hat reached at the check points from above."""
     radii, d = barrier_case()
     results = {}
-    for j_hat, sim in ((0.0, simulator("translation", ctrl_per_patch=5, quad_points=2)), (J_HAT, barrier_simulator)):
+    plain = simulator("translation", solver={"element_bound": False}, ctrl_per_patch=5, quad_points=2)
+    for j_hat, sim in ((0.0, plain), (J_HAT, barrier_simulator)):
         params = {"radii": jnp.asarray(radii)}
         sol = sim.solve(params, jnp.asarray(d), material(0.07, 0.3))
         results[j_hat] = StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(sol.u)

@@ -98,3 +98,21 @@ def test_evaluate_asks_for_a_group_before_its_fields(monkeypatch, capsys, field,
         evaluate.main()
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and said in err and "Traceback" not in err
+
+
+def test_a_run_from_before_the_element_bound_is_read_without_it(tmp_path, translation_run):
+    """A run directory whose saved config has no solver.element_bound trained before the bound was
+    Newton's default: load_run (nma.evaluate, nma.export) reads it with the bound off, as it trained;
+    a run that records the setting keeps it."""
+    import shutil
+
+    from nma.train.runs import load_run
+
+    run = tmp_path / "run"
+    shutil.copytree(translation_run / ".hydra", run / ".hydra")
+    shutil.copytree(translation_run / "checkpoints", run / "checkpoints")
+    assert load_run(run)[0].solver.element_bound is True  # this run recorded the default
+    cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+    del cfg.solver["element_bound"]
+    OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
+    assert load_run(run)[0].solver.element_bound is False

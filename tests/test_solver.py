@@ -348,3 +348,27 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
     assert st["audits"] == 1 and st["audits_same"] == 1 and st["audits_within_1e-8"] == 1
     assert st["cold_solves"] == 2 and st["warm_solves"] == 1
     np.testing.assert_allclose(w.u, cold.equilibrium_batch(X, jnp.array([[1.2, 0.4]]), mat).u, atol=1e-9)
+
+
+def test_the_element_bound_fails_a_solve_that_inverts_and_changes_nothing_where_none_does(simulator):
+    """solver.element_bound (the default): Newton's step keeps det F > 0 at each element's 4 x 4 check
+    points, not only at its Gauss points.  conftest.barrier_case converges without it to a state inverted
+    between Gauss points (nma.geometry.validity); with it the solve stops short and says so.  A solve that
+    never inverts is the same, iterate for iterate."""
+    from conftest import barrier_case
+    from nma.geometry.validity import StateChecker
+
+    radii, d = barrier_case()
+    params, mat = {"radii": jnp.asarray(radii)}, material(0.07, 0.3)
+    bounded = simulator("translation", ctrl_per_patch=5, quad_points=2)
+    plain = simulator("translation", solver={"element_bound": False}, ctrl_per_patch=5, quad_points=2)
+    assert bounded.options.element_bound and not plain.options.element_bound
+    checker = StateChecker(plain.disc, np.asarray(plain.reference_points(params)))
+    inverted = plain.solve(params, jnp.asarray(d), mat)
+    assert checker.check(inverted.u).inverted_elements > 0
+    with pytest.raises(SolverError, match="where the material would invert between Gauss points.*converged up to load factor 0"):
+        bounded.solve(params, jnp.asarray(d), mat)
+    a, b = (sim.solve(params, 0.3 * jnp.asarray(d), mat) for sim in (plain, bounded))
+    assert checker.check(a.u).valid
+    assert int(a.info.iterations) == int(b.info.iterations)
+    np.testing.assert_array_equal(a.u, b.u)

@@ -68,11 +68,12 @@ def _check_geometry(disc: Discretisation, X: jnp.ndarray):
     return _physical(jnp.asarray(disc.check_grads), X[disc.elem_points], skip_degenerate=True)
 
 
-def quadrature(disc: Discretisation, X: jnp.ndarray) -> Quadrature:
-    """Physical basis gradients and weights from the reference control points X (n_points, 2)."""
+def quadrature(disc: Discretisation, X: jnp.ndarray, check_points: bool = False) -> Quadrature:
+    """Physical basis gradients and weights from the reference control points X (n_points, 2); the check
+    points' too with the inversion barrier, or where asked (`check_points`: Newton's element bound)."""
     Xe = X[disc.elem_points]                                           # (P, S2, 9, 2)
     G, det = _physical(jnp.asarray(disc.basis_grads), Xe)
-    if disc.fidelity.inversion_barrier > 0:
+    if disc.fidelity.inversion_barrier > 0 or check_points:
         Gc, detc = _check_geometry(disc, X)
         checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
     else:  # no check points: nothing to compute (or to differentiate in the adjoint)
@@ -258,22 +259,24 @@ def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, m
 
 
 def step_bounds(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf):
-    """The two bounds of a step along du: the material's (det F > 0 at every Gauss point, and with the
-    inversion barrier at every check point) and the walls' (with contact, the time of impact of a pore-wall
-    vertex on a chord; inf without).
+    """The three bounds of a step along du: the Gauss points' (det F > 0 at every one), the check points'
+    (det F > 0 at every one, where the quadrature has them: the inversion barrier's, Newton's element
+    bound; inf without) and the walls' (with contact, the time of impact of a pore-wall vertex on a
+    chord; inf without).
 
-    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the material's bound is the smallest positive root.
+    det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the material's bounds are smallest positive roots.
     The walls' bound is exact up to `horizon` (a caller that takes min(1, fraction * bound) needs no more);
     beyond it a step is not bounded by contact."""
-    bound = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
+    gauss = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
                                                                         quad.grads))
-    if disc.fidelity.inversion_barrier > 0:
+    checks = jnp.asarray(jnp.inf, gauss.dtype)
+    if quad.check_grads.shape[2]:
         dF = jnp.einsum("psai,psqaj->psqij", du[disc.elem_points], quad.check_grads)
         Fc = deformation_gradient(disc, quad, u, at_checks=True)
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
-        bound = jnp.minimum(bound, _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF)))
+        checks = _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF))
     walls = contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, horizon) if disc.contact else jnp.inf
-    return bound, jnp.asarray(walls, bound.dtype)
+    return gauss, checks, jnp.asarray(walls, gauss.dtype)
 
 
 def _first_root(F, dF):

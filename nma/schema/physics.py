@@ -135,6 +135,10 @@ class SolverConfig(Schema):
                                              "(0: exact throughout; docs/validity.md)")
     escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
         "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
+    element_bound: bool = field(default=_NEWTON.element_bound, metadata={
+        "doc": "Newton's step keeps det F > 0 at each element's 4 x 4 check points (corners included), not "
+               "only at its Gauss points: a state that inverts between them fails instead of converging "
+               "(docs/validity.md)"})
     warm_start: bool = field(default=_NEWTON.warm_start, metadata={
         "doc": "start a solve from the kept equilibrium nearest in actuation (host backends; docs/speed.md)"})
     warm_pool: int = bounded(_NEWTON.warm_pool, "[1, 100000]", doc="equilibria kept as warm starts")

@@ -7,7 +7,8 @@ Each iteration assembles the force and element tangents at the current state and
              with contact, one that the walls' time of impact stops short moves the load on, the
              prescribed displacements alone, as far as that keeps every point valid (_past_the_walls);
   corrector  (at fixed load): Newton step with backtracking Armijo line search on the energy, the
-             step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step);
+             step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step),
+             and with element_bound at each element's 4 x 4 check points too;
              with contact, far from equilibrium the tangent takes contact's normal stiffness only
              (_contact_normal).  With corrector="trust_region" the step of K + shift I instead, taken
              or rejected by how well the energy's quadratic model predicted its fall, the shift adapted
@@ -49,7 +50,7 @@ from ..mechanics.energy import Quadrature, energy_force_tangents, quadrature, st
 from .assembly import element_dofs
 from .options import NewtonOptions
 
-RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT = 0, 1, 2, 3, 4
+RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT, INVERTS = 0, 1, 2, 3, 4, 5
 FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearly converged...
 FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this factor of the tolerance
 TRUST_ACCEPT, TRUST_POOR, TRUST_GOOD = 0.1, 0.25, 0.75  # actual over predicted fall: taken, shift raised, lowered
@@ -58,7 +59,10 @@ NEARLY_INCOMPRESSIBLE = 0.495  # nu from which the volume constraint, not the lo
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
                ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
-               NONFINITE_INPUT: "its input (geometry, actuation or material) is not finite; nothing was solved"}
+               NONFINITE_INPUT: "its input (geometry, actuation or material) is not finite; nothing was solved",
+               INVERTS: ("the load increment fell below solver.min_increment where the material would invert "
+                         "between Gauss points (solver.element_bound keeps det F > 0 at each element's 4 x 4 "
+                         "check points; with it false the solve goes on to a state that is not a physical object)")}
 
 
 class NewtonInfo(NamedTuple):
@@ -207,7 +211,7 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     where the design moved since: the first-order response to the change of design and actuation
     together.  The tolerance is the cold solve's either way (the force scale of the full load, from
     the tangent at rest), so a warm answer meets the same test as a cold one."""
-    quad = quadrature(eqs.disc, X)
+    quad = quadrature(eqs.disc, X, check_points=opts.element_bound)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
     scalar = lambda v: jnp.asarray(v, X.dtype)
@@ -306,8 +310,10 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     flipped = ~predictor & finite & (slope > 0)
     step = jnp.where(flipped, -du, du)
     # the step may go a fraction of the way to J = 0 or to the walls' impact (predictor: load moves along)
-    material, walls = _step_bounds(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0), 1.0 / opts.step_fraction)
+    gauss, checks, walls = _step_bounds(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0), 1.0 / opts.step_fraction)
+    material = jnp.minimum(gauss, checks)
     a0 = jnp.minimum(1.0, opts.step_fraction * jnp.minimum(material, walls))
+    inverting = (checks < jnp.minimum(gauss, walls)) & (a0 < 1.0)  # the step stopped where it would invert unseen
 
     trust = opts.corrector == "trust_region"
 
@@ -343,7 +349,8 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
                                                     descent, agreement, cut)
     else:
         shift_new, shift_memory = _next_shift(s, du, slope, finite, descent, cut)
-    status = jnp.where(cut & (dlam_cut < opts.min_increment), INCREMENT_TOO_SMALL, s.status)
+    status = jnp.where(cut & (dlam_cut < opts.min_increment), jnp.where(inverting, INVERTS, INCREMENT_TOO_SMALL),
+                       s.status)
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
                             step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
                             damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
@@ -458,16 +465,16 @@ def _next_shift(s: _State, du, slope, finite, descent, cut):
 
 
 def _step_bounds(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
-    """The largest steps along (du, dlam) that keep J > 0 at every Gauss point, and with contact no pore's
-    walls meeting (exact up to `horizon`, the longest step the caller takes; inf without); 0 where
-    undefined."""
+    """The largest steps along (du, dlam) that keep J > 0 at every Gauss point, at every check point (inf
+    without them: element_bound, the inversion barrier), and with contact no pore's walls meeting (exact
+    up to `horizon`, the longest step the caller takes; inf without); 0 where undefined."""
     bounds = step_bounds(eqs.disc, p.quad, eqs.full(u, p.boundary(lam)), eqs.full(du, dlam * (p.u_D - p.u_D0)), horizon)
     return tuple(jnp.where(jnp.isnan(b), 0.0, b) for b in bounds)
 
 
 def _step_bound(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
-    """The largest step along (du, dlam) that keeps J > 0 and the walls apart (the smaller bound)."""
-    return jnp.minimum(*_step_bounds(eqs, p, u, lam, du, dlam, horizon))
+    """The largest step along (du, dlam) that keeps J > 0 and the walls apart (the smallest bound)."""
+    return jnp.min(jnp.stack(_step_bounds(eqs, p, u, lam, du, dlam, horizon)))
 
 
 def _past_the_walls(eqs: Equations, opts: NewtonOptions, p: Problem, u, lam, rest, stopped):

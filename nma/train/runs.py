@@ -43,6 +43,8 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
     cfg = OmegaConf.load(saved)
+    if "solver" in cfg and "element_bound" not in cfg.solver:  # trained before the bound was Newton's default:
+        cfg.solver.element_bound = False                         # its equilibria are re-solved as it found them
     try:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
