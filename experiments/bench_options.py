@@ -1,14 +1,16 @@
-"""What contact costs: solve and gradient time with and without the pores' self-contact, per paper scene.
+"""What an option costs: solve and gradient time with it off and on, per paper scene.  The options: the
+pores' self-contact (contact=off / on) and Newton's element bound (solver.element_bound=false / true).
 
-    python experiments/bench_contact.py                 # every scene -> outputs/bench/contact.{json,md}
-    python experiments/bench_contact.py --scenes translation --repeats 3
+    python experiments/bench_options.py                 # contact, every scene -> outputs/bench/contact.{json,md}
+    python experiments/bench_options.py --option element_bound --scenes translation --repeats 3
 
-Per scene, at the paper's discretisation (5 x 5) and PARDISO, one process builds the scene twice
-(contact=off, contact=on) and times a training step's forward solve with its gradient (the loss of
+Per scene, at the paper's discretisation (5 x 5) and PARDISO, one process builds the scene twice (the
+option off, then on) and times a training step's forward solve with its gradient (the loss of
 experiments/bench_solver.py) for the same actuations, drawn uniformly within the task's d_max, the two
 models interleaved so that the machine's load affects both alike.  Reported: min and median seconds,
-the ratio of the medians, Newton iterations, the first call (compilation), how many of the states are
-physical objects (nma/geometry/validity.py) in each model, and how many had walls within the contact
+the ratio of the medians, Newton iterations, the first call (compilation), the solves that converged
+and how many of their states are physical objects (nma/geometry/validity.py) in each model, where both
+converged whether they reached the same state, and with contact how many had walls within the contact
 distance (where the two models differ by design).
 """
 from __future__ import annotations
@@ -27,9 +29,23 @@ from bench_solver import objective, stats
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
+OPTIONS = ("contact", "element_bound")
+SAME = 1e-8  # largest displacement difference (relative to the largest displacement) of one equilibrium
 
 
-def bench_scene(scene: str, repeats: int) -> dict:
+def build(scene: str, option: str, on: bool):
+    """The scene's simulator with `option` off or on, everything else at its default."""
+    from nma import config
+    from nma.simulator import Simulator
+
+    solver = {"linear": "pardiso", "rtol": 1e-10}
+    if option == "element_bound":
+        solver["element_bound"] = on
+    return Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"), solver,
+                                 {"enabled": on} if option == "contact" else {"enabled": False})
+
+
+def bench_scene(scene: str, repeats: int, option: str = "contact") -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -37,17 +53,15 @@ def bench_scene(scene: str, repeats: int) -> dict:
     from nma.geometry.validity import StateChecker
     from nma.mechanics.contact import smallest_gap
     from nma.mechanics.material import material
-    from nma.simulator import Simulator
 
     mat = material(0.07, 0.3)
     d_max = config.load("task", scene)["d_max"]
     rng = np.random.default_rng(0)
-    out = {"scene": scene, "d_max": d_max}
+    out = {"scene": scene, "option": option, "d_max": d_max}
     sims, steps, first = {}, {}, {}
     for mode in ("off", "on"):
         t0 = time.perf_counter()
-        sims[mode] = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
-                                           {"linear": "pardiso", "rtol": 1e-10}, {"enabled": mode == "on"})
+        sims[mode] = build(scene, option, mode == "on")
         out[f"build_seconds_{mode}"] = time.perf_counter() - t0
         steps[mode] = jax.jit(jax.value_and_grad(objective(sims[mode]), argnums=(0, 1), has_aux=True))
     params = sims["on"].init_params()
@@ -62,9 +76,10 @@ def bench_scene(scene: str, repeats: int) -> dict:
     iters = {m: [] for m in steps}
     valid = {m: 0 for m in steps}
     converged = {m: 0 for m in steps}
-    touching = 0
+    touching, same = 0, 0
     model = sims["on"].disc.contact
     for d in draws:
+        states = {}
         for mode in ("off", "on"):
             t0 = time.perf_counter()
             (_, eq), _ = jax.block_until_ready(steps[mode](params, d, mat))
@@ -72,14 +87,19 @@ def bench_scene(scene: str, repeats: int) -> dict:
             iters[mode].append(int(eq.info.iterations))
             if eq.converged:
                 converged[mode] += 1
-                valid[mode] += checker.check(np.asarray(eq.u)).valid
-                if mode == "on":
-                    touching += smallest_gap(model, X + np.asarray(eq.u), X) < model.d_hat
-    out.update({"dofs": sims["on"].disc.n_dofs, "contact_blocks": model.n_blocks, "d_hat": model.d_hat,
-                "first_call_seconds": first, "seconds": {m: stats(v) for m, v in seconds.items()},
+                states[mode] = np.asarray(eq.u)
+                valid[mode] += checker.check(states[mode]).valid
+                if model is not None and mode == "on":
+                    touching += smallest_gap(model, X + states[mode], X) < model.d_hat
+        if len(states) == 2:
+            same += np.max(np.abs(states["on"] - states["off"])) <= SAME * np.max(np.abs(states["off"]))
+    out.update({"dofs": sims["on"].disc.n_dofs, "first_call_seconds": first,
+                "seconds": {m: stats(v) for m, v in seconds.items()},
                 "median_ratio": float(np.median(seconds["on"]) / np.median(seconds["off"])),
                 "newton_iterations": {m: stats(v) for m, v in iters.items()},
-                "converged": converged, "valid": valid, "touching_with_contact": int(touching), "states": repeats})
+                "converged": converged, "valid": valid, "same_state": int(same), "states": repeats})
+    if model is not None:
+        out.update({"contact_blocks": model.n_blocks, "d_hat": model.d_hat, "touching_with_contact": int(touching)})
     return out
 
 
@@ -87,7 +107,7 @@ def child(args):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    print(json.dumps(bench_scene(args.scene, args.repeats)))
+    print(json.dumps(bench_scene(args.scene, args.repeats, args.option)))
 
 
 def main():
@@ -95,31 +115,39 @@ def main():
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--scene", default="translation", help=argparse.SUPPRESS)
     ap.add_argument("--scenes", nargs="+", default=SCENES, choices=SCENES)
+    ap.add_argument("--option", default="contact", choices=OPTIONS)
     ap.add_argument("--repeats", type=int, default=9)
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "bench" / "contact.json")
+    ap.add_argument("--out", type=Path, help="default: outputs/bench/<option>.json")
     args = ap.parse_args()
+    args.out = args.out or ROOT / "outputs" / "bench" / f"{args.option}.json"
     if args.child:
         return child(args)
     results = []
     for scene in args.scenes:  # each scene in its own process
-        proc = subprocess.run([sys.executable, __file__, "--child", "--scene", scene, "--repeats", str(args.repeats)],
+        proc = subprocess.run([sys.executable, __file__, "--child", "--scene", scene, "--repeats", str(args.repeats),
+                               "--option", args.option],
                               capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         if proc.returncode:
             raise RuntimeError(f"{scene} failed:\n{proc.stderr[-3000:]}")
         results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
         r = results[-1]
-        print(f"{scene}: off {r['seconds']['off']['median']:.3f} s, on {r['seconds']['on']['median']:.3f} s "
-              f"(x{r['median_ratio']:.2f}); valid {r['valid']['off']} -> {r['valid']['on']} of {r['states']}", flush=True)
+        print(f"{scene}: {args.option} off {r['seconds']['off']['median']:.3f} s, on {r['seconds']['on']['median']:.3f} s "
+              f"(x{r['median_ratio']:.2f}); converged {r['converged']['off']} -> {r['converged']['on']}, physical "
+              f"{r['valid']['off']} -> {r['valid']['on']} of {r['states']}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": {"cpus": os.cpu_count()}, "scenes": results}, indent=1))
-    lines = ["| scene | dofs | contact blocks | step off (min / median s) | step on | median ratio | iterations off / on "
-             "(median) | first call off / on (s) | physical off / on | touching |", "|---|" + "---|" * 9]
+    contact = args.option == "contact"
+    lines = [f"{args.option} off / on, per scene", "",
+             "| scene | dofs | step off (min / median s) | step on | median ratio | iterations off / on (median) | "
+             "first call off / on (s) | converged off / on | physical off / on | same state |"
+             + (" contact blocks | touching |" if contact else ""), "|---|" + "---|" * (9 + 2 * contact)]
     for r in results:
-        s, it, f = r["seconds"], r["newton_iterations"], r["first_call_seconds"]
-        lines.append(f"| {r['scene']} | {r['dofs']} | {r['contact_blocks']} | {s['off']['min']:.3f} / {s['off']['median']:.3f} | "
+        s, it, f, c, v = r["seconds"], r["newton_iterations"], r["first_call_seconds"], r["converged"], r["valid"]
+        lines.append(f"| {r['scene']} | {r['dofs']} | {s['off']['min']:.3f} / {s['off']['median']:.3f} | "
                      f"{s['on']['min']:.3f} / {s['on']['median']:.3f} | {r['median_ratio']:.2f} | "
                      f"{it['off']['median']:.0f} / {it['on']['median']:.0f} | {f['off']:.1f} / {f['on']:.1f} | "
-                     f"{r['valid']['off']} / {r['valid']['on']} of {r['states']} | {r['touching_with_contact']} |")
+                     f"{c['off']} / {c['on']} of {r['states']} | {v['off']} / {v['on']} | {r['same_state']} |"
+                     + (f" {r['contact_blocks']} | {r['touching_with_contact']} |" if contact else ""))
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

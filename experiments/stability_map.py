@@ -78,7 +78,7 @@ def designs(sim, rng) -> dict[str, dict]:
 
 def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
               formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None,
-              corrector: str = "line_search") -> dict:
+              corrector: str = "line_search", element_bound: bool = True) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -86,10 +86,10 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     from nma.geometry.validity import StateChecker
     from nma.mechanics.material import material
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED, STATUS_TEXT
+    from nma.solver.newton import CONVERGED, INVERTS, STATUS_TEXT
 
     rng = np.random.default_rng(seed)
-    solver = {"escape_saddles": escape_saddles, "corrector": corrector}
+    solver = {"escape_saddles": escape_saddles, "corrector": corrector, "element_bound": element_bound}
     if max_iters is not None:  # else the solver's default budget
         solver["max_iters"] = max_iters
     sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"), solver,
@@ -122,6 +122,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
         state = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if status == CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
                         "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
+                        "inverts": status == INVERTS,
                         "load_reached": float(info.load), "iterations": int(info.iterations),
                         "load_steps": int(info.load_steps), "cuts": int(info.cuts),
                         "residual": float(info.residual), "tolerance": float(info.tolerance),
@@ -131,13 +132,13 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
                         "problems": None if state is None else state.problems()})
         r = records[-1]
         print(f"{scene:16s} {gname[:28]:28s} nu={nu:<6} d={np.round(d_max * s, 1).tolist()}: "
-              f"{'ok' if r['converged'] else 'FAILED at load ' + format(r['load_reached'], '.3f')} "
+              f"{'ok' if r['converged'] else ('STOPPED (inverts)' if r['inverts'] else 'FAILED') + ' at load ' + format(r['load_reached'], '.3f')} "
               f"{'' if not unstable else f'(saddle: {unstable} negative eigenvalues) '}"
               f"{'' if state is None or state.valid else '(NOT PHYSICAL: ' + '; '.join(state.problems()) + ') '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
             "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
-            + (f", {corrector}" if corrector != "line_search" else ""),
+            + (f", {corrector}" if corrector != "line_search" else "") + ("" if element_bound else ", no element bound"),
             "max_iters": sim.options.max_iters,
             "contact": contact, "formulation": formulation,
             "records": records}
@@ -169,6 +170,9 @@ def summarise(result: dict, out: Path) -> None:
                          "converged_by_nu": {str(nu): sum(r["converged"] for r in recs if r["nu"] == nu) for nu in nus},
                          "solves_by_nu": {str(nu): sum(r["nu"] == nu for r in recs) for nu in nus},
                          "saddles": len(saddles),
+                         # stopped by the element bound where the material would invert between Gauss
+                         # points (maps from before the bound have no "inverts" field: 0)
+                         "stopped_inverting": sum(bool(r.get("inverts")) for r in recs),
                          # older maps (before the validity check) have no "valid" field: None
                          "invalid": (sum(r.get("valid") is False for r in recs)
                                      if any("valid" in r for r in recs) else None),
@@ -184,7 +188,9 @@ def summarise(result: dict, out: Path) -> None:
              f"{', formulation ' + result['formulation'] if result.get('formulation', 'displacement') != 'displacement' else ''})",
              "",
              f"{s['converged']} of {s['solves']} solves converged; {s['nonfinite']} returned non-finite values; "
-             f"median time {s['median_converged_seconds']:.2f} s converged"
+             + (f"{s['stopped_inverting']} stopped where the material would invert between Gauss points "
+                "(solver.element_bound); " if s.get("stopped_inverting") else "")
+             + f"median time {s['median_converged_seconds']:.2f} s converged"
              + (f", {s['median_failed_seconds']:.2f} s failed (at most {s['failed_over_converged_same_nu']:.1f}x the "
                 f"median converged solve at the same nu)" if failed else "") + ". "
              f"{s['saddles']} converged states are saddles (negative eigenvalues of the Hessian: unstable "
@@ -238,6 +244,9 @@ def main():
     ap.add_argument("--corrector", default="line_search", choices=CORRECTORS,
                     help="solver.corrector (write to a separate --out to compare)")
     ap.add_argument("--max-iters", type=int, help="solver.max_iters, Newton's budget per solve (default: the solver's)")
+    ap.add_argument("--no-element-bound", dest="element_bound", action="store_false",
+                    help="solver.element_bound=false: Newton steps on where the material inverts between Gauss "
+                         "points (the maps before the bound was the default; write to a separate --out)")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -250,10 +259,12 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
         result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
-                           nus=args.nus, max_iters=args.max_iters, corrector=args.corrector)
+                           nus=args.nus, max_iters=args.max_iters, corrector=args.corrector,
+                           element_bound=args.element_bound)
         summarise(result, args.out)
         s = result["summary"]
-        print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['nonfinite']} non-finite -> "
+        print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['stopped_inverting']} stopped where the material "
+              f"would invert, {s['nonfinite']} non-finite -> "
               f"{args.out / scene}.{{json,md,png}}", flush=True)
 
 
