@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from bench_solver import objective, stats
+from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
 OPTIONS = ("contact", "element_bound")
-SAME = 1e-8  # largest displacement difference (relative to the largest displacement) of one equilibrium
 
 
 def build(scene: str, option: str, on: bool):
@@ -92,7 +92,7 @@ def bench_scene(scene: str, repeats: int, option: str = "contact") -> dict:
                 if model is not None and mode == "on":
                     touching += smallest_gap(model, X + states[mode], X) < model.d_hat
         if len(states) == 2:
-            same += np.max(np.abs(states["on"] - states["off"])) <= SAME * np.max(np.abs(states["off"]))
+            same += np.max(np.abs(states["on"] - states["off"])) <= SAME_EQUILIBRIUM * np.max(np.abs(states["off"]))
     out.update({"dofs": sims["on"].disc.n_dofs, "first_call_seconds": first,
                 "seconds": {m: stats(v) for m, v in seconds.items()},
                 "median_ratio": float(np.median(seconds["on"]) / np.median(seconds["off"])),

@@ -25,17 +25,20 @@ import numpy as np
 
 import stability_map  # the sibling script (this directory is on the path when run as a script)
 from nma.mechanics.options import FORMULATIONS
+from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = {"corrector": ("line_search", "trust_region"), "element_bound": (False, True)}  # the two values compared
-SAME = 1e-6  # relative displacement difference below which two converged states are one equilibrium
 
 
 def label(setting: str, value) -> str:
     return value if isinstance(value, str) else f"{setting}={str(value).lower()}"
 
 
-def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "corrector") -> list[dict]:
+def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "corrector",
+              others: dict | None = None) -> list[dict]:
+    """Every map cell of `scene` at `nus`, solved with each value of `setting` (`others`: further solver
+    settings, the same for both)."""
     import jax
     import jax.numpy as jnp
 
@@ -46,7 +49,7 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
     from nma.solver.newton import CONVERGED, STATUS_TEXT
 
     sims = {label(setting, v): Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
-                                                     {setting: v}, {"enabled": False}, formulation)
+                                                     {**(others or {}), setting: v}, {"enabled": False}, formulation)
             for v in SETTINGS[setting]}
     sim = next(iter(sims.values()))
     d_max = config.load("task", scene)["d_max"]
@@ -96,9 +99,9 @@ def table(records: list[dict], setting: str = "corrector") -> list[str]:
         physical = {c: sum(bool(r[c].get("physical")) for r in rs) for c in values}  # earlier files: no field
         pair = lambda k, f="{}": " / ".join(f.format(total[k][c]) for c in values)  # noqa: E731
         lines.append(f"| {scene} | {pair('converged')} of {len(rs)} | {pair('iterations')} | {pair('seconds', '{:.1f}')} | "
-                     f"{sum(x < SAME for x in both)} of {len(both)} | {' / '.join(str(saddles[c]) for c in values)} | "
+                     f"{sum(x <= SAME_EQUILIBRIUM for x in both)} of {len(both)} | {' / '.join(str(saddles[c]) for c in values)} | "
                      f"{' / '.join(str(physical[c]) for c in values)} |")
-    other = [r for r in records if r.get("difference", 0.0) >= SAME]
+    other = [r for r in records if r.get("difference", 0.0) > SAME_EQUILIBRIUM]
     if other:
         lines += ["", "Cells where the two converged to different equilibria (energy, unstable modes):", ""]
         lines += [f"- {r['scene']}, {r['design']}, nu {r['nu']}, d = {np.round(r['d'], 1).tolist()}: difference "
@@ -113,6 +116,8 @@ def main():
     ap.add_argument("--nus", nargs="+", type=float, default=[0.499], help="Poisson's ratios")
     ap.add_argument("--formulation", default="displacement", choices=FORMULATIONS)
     ap.add_argument("--setting", default="corrector", choices=list(SETTINGS), help="the solver setting compared")
+    ap.add_argument("--no-element-bound", dest="element_bound", action="store_false",
+                    help="both solves with solver.element_bound=false (the corrector study as it was measured)")
     ap.add_argument("--out", type=Path, default=None, help="default: outputs/studies/correctors or outputs/studies/element_bound")
     args = ap.parse_args()
     from nma.runtime import configure_jax
@@ -121,7 +126,10 @@ def main():
     name = "correctors" if args.setting == "corrector" else args.setting  # the corrector study's names as before
     args.out = args.out or ROOT / "outputs" / "studies" / name
     args.out.mkdir(parents=True, exist_ok=True)
-    records = [r for scene in args.scenes for r in run_scene(scene, args.nus, args.formulation, args.setting)]
+    if args.setting == "element_bound" and not args.element_bound:
+        ap.error("--no-element-bound with --setting element_bound: the setting compared is the bound itself")
+    others = {} if args.element_bound else {"element_bound": False}
+    records = [r for scene in args.scenes for r in run_scene(scene, args.nus, args.formulation, args.setting, others)]
     (args.out / f"{name}.json").write_text(json.dumps(records, indent=1))
     lines = table(records, args.setting)
     (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")

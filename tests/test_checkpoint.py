@@ -89,6 +89,20 @@ def test_a_run_trained_at_the_papers_default_is_told_to_add_fidelity_paper():
     assert "add fidelity=paper" not in str(other.value)
 
 
+def test_a_run_trained_before_the_element_bound_is_told_to_add_it_off():
+    """A checkpoint from before Newton's element bound was the default records no solver setting; resumed
+    with today's default it stops naming the field and the override that resumes it as it trained."""
+    import json
+
+    from nma.train.checkpoint import check_fingerprint
+
+    before, today = {"trainer": {"seed": 0}}, {"trainer": {"seed": 0}, "solver": {"element_bound": True}}
+    with pytest.raises(ConfigError, match=r"solver.element_bound: '\(unset\)' -> True\) \(it trained without "
+                                          r"Newton's element bound: add solver.element_bound=false\)"):
+        check_fingerprint("c", {"config": json.dumps(before)}, today)
+    check_fingerprint("c", {"config": json.dumps(before)}, before)  # with it off: the same fingerprint
+
+
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])
 def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translation_run, caplog, damage):
     from nma.train import checkpoint

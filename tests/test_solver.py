@@ -372,3 +372,16 @@ def test_the_element_bound_fails_a_solve_that_inverts_and_changes_nothing_where_
     assert checker.check(a.u).valid
     assert int(a.info.iterations) == int(b.info.iterations)
     np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_the_trust_region_stops_where_the_element_bound_holds_the_load(simulator):
+    """A predictor that the element bound cuts below solver.min_increment cuts the load step with the
+    trust-region corrector as with the line search: conftest.barrier_case ends with INVERTS, not by
+    re-trying the same predictor up to the iteration limit."""
+    from conftest import barrier_case
+    from nma.solver.newton import INVERTS
+
+    radii, d = barrier_case()
+    sim = simulator("translation", solver={"corrector": "trust_region"}, ctrl_per_patch=5, quad_points=2)
+    eq = sim.solve({"radii": jnp.asarray(radii)}, jnp.asarray(d), material(0.07, 0.3), throw=False)
+    assert int(eq.info.status) == INVERTS and int(eq.info.iterations) < 50, eq.message

@@ -12,7 +12,8 @@ element (corners included: where nma.geometry.validity samples it) and a barrier
     b(J) = -kappa (1 - J / J_hat)^2 log(J / J_hat)   for J < J_hat,   0 above
 (C2 at J_hat, infinite at J = 0: the barrier of incremental potential contact, Li et al. 2020, on J)
 weighted by a 16th of the element's area joins the energy, and Newton's step bound keeps det F > 0 at
-the check points too.  Where det F >= J_hat at every check point, nothing changes.
+the check points too (as it does without the barrier with solver.element_bound, the default).  Where
+det F >= J_hat at every check point, nothing changes.
 
 Formulations (`material.formulation`, stored in Discretisation.formulation):
 - `displacement`: W(F) at every Gauss point.

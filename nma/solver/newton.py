@@ -8,7 +8,7 @@ Each iteration assembles the force and element tangents at the current state and
              prescribed displacements alone, as far as that keeps every point valid (_past_the_walls);
   corrector  (at fixed load): Newton step with backtracking Armijo line search on the energy, the
              step first bounded so that J > 0 at every Gauss point (det F is quadratic in the step),
-             and with element_bound at each element's 4 x 4 check points too;
+             and with element_bound (or the inversion barrier) at each element's 4 x 4 check points too;
              with contact, far from equilibrium the tangent takes contact's normal stiffness only
              (_contact_normal).  With corrector="trust_region" the step of K + shift I instead, taken
              or rejected by how well the energy's quadratic model predicted its fall, the shift adapted
@@ -46,7 +46,9 @@ import numpy as np
 
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
-from ..mechanics.energy import Quadrature, energy_force_tangents, quadrature, step_bounds, strain_energy
+from ..mechanics.energy import (Quadrature, deformation_gradient, energy_force_tangents, quadrature, step_bounds,
+                                strain_energy)
+from ..mechanics.material import det2
 from .assembly import element_dofs
 from .options import NewtonOptions
 
@@ -61,8 +63,9 @@ STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
                NONFINITE_INPUT: "its input (geometry, actuation or material) is not finite; nothing was solved",
                INVERTS: ("the load increment fell below solver.min_increment where the material would invert "
-                         "between Gauss points (solver.element_bound keeps det F > 0 at each element's 4 x 4 "
-                         "check points; with it false the solve goes on to a state that is not a physical object)")}
+                         "between Gauss points (det F at an element's 4 x 4 check points, which solver.element_bound "
+                         "keeps positive; without the bound the solve may go on to a state inverted there, not a "
+                         "physical object)")}
 
 
 class NewtonInfo(NamedTuple):
@@ -127,6 +130,7 @@ class _State(NamedTuple):
     damped: jnp.ndarray   # heavily damped corrector steps (trust region: rejected steps) in a row in this load step
     shift_memory: jnp.ndarray  # the last diagonal shift that gave a descent direction in this solve
     f_ref: jnp.ndarray    # the force scale of the full load (the tolerance is rtol times it, plus atol's)
+    inverting: jnp.ndarray  # since the last converged load step, a step was stopped short by the check points
 
 
 class Equations:
@@ -203,7 +207,8 @@ class Linearised(NamedTuple):
 
 
 def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, _State]:
-    """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input).  Cold
+    """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input, INVERTS for
+    a warm start inverted at the check points under this design, with element_bound).  Cold
     (start None): at rest.  Warm (start = (u_free0, u_D0, kel_rest): another sample's equilibrium, under
     the full dead load, and this design's element tangents at rest): the load walks from u_D0 to this
     sample's u_D.  Either way the first iteration is a
@@ -225,10 +230,17 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
         finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0))
         p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
         tol, k_ref, f_ref = _scales(eqs, opts, p, kel_rest)
+    status = jnp.where(finite, RUNNING, NONFINITE_INPUT)
+    if start is not None and opts.element_bound:
+        # a start inverted between Gauss points under this design (it moved since): no bound holds from
+        # there, so the warm solve ends at once (INVERTS) and is redone cold
+        Jc = det2(deformation_gradient(eqs.disc, quad, eqs.full(u0, u_D0), at_checks=True))
+        inverted = jnp.any((Jc <= 0) & (quad.check_weights > 0))
+        status = jnp.where(finite & inverted, INVERTS, status)
     init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-                  jnp.where(finite, RUNNING, NONFINITE_INPUT), tol, k_ref, scalar(jnp.inf),
-                  jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0), scalar(0.0), f_ref)
+                  status, tol, k_ref, scalar(jnp.inf),
+                  jnp.full(opts.max_iters, jnp.nan, X.dtype), jnp.asarray(0), scalar(0.0), f_ref, jnp.asarray(False))
     return p, init
 
 
@@ -262,7 +274,8 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: _State, at=Non
     rhs = jnp.where(predictor, -(g + eqs.coupling(kel, dlam * (p.u_D - p.u_D0)) - dlam * (1.0 - p.load0) * eqs.f_free),
                     -g)
     state = s._replace(u_conv=u_conv, lam_conv=lam_conv, dlam=dlam, predictor=predictor,
-                       steps=s.steps + step_done, status=status, tol=tol, k_ref=k_ref, f_ref=f_ref, rnorm=rnorm)
+                       steps=s.steps + step_done, status=status, tol=tol, k_ref=k_ref, f_ref=f_ref, rnorm=rnorm,
+                       inverting=s.inverting & ~step_done)
     return Linearised(state, E0, g, kel, rhs)
 
 
@@ -313,7 +326,8 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     gauss, checks, walls = _step_bounds(eqs, p, s.u, s.lam, step, jnp.where(predictor, dlam, 0.0), 1.0 / opts.step_fraction)
     material = jnp.minimum(gauss, checks)
     a0 = jnp.minimum(1.0, opts.step_fraction * jnp.minimum(material, walls))
-    inverting = (checks < jnp.minimum(gauss, walls)) & (a0 < 1.0)  # the step stopped where it would invert unseen
+    # the step stopped where the material would invert between Gauss points (the element bound's doing)
+    inverting = s.inverting | ((checks < jnp.minimum(gauss, walls)) & (a0 < 1.0))
 
     trust = opts.corrector == "trust_region"
 
@@ -349,11 +363,11 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
                                                     descent, agreement, cut)
     else:
         shift_new, shift_memory = _next_shift(s, du, slope, finite, descent, cut)
-    status = jnp.where(cut & (dlam_cut < opts.min_increment), jnp.where(inverting, INVERTS, INCREMENT_TOO_SMALL),
-                       s.status)
+    why = jnp.where(inverting, INVERTS, INCREMENT_TOO_SMALL) if opts.element_bound else INCREMENT_TOO_SMALL
+    status = jnp.where(cut & (dlam_cut < opts.min_increment), why, s.status)
     return _tick(s._replace(u=u_new, lam=lam_new, dlam=dlam_new, predictor=cut, shift=shift_new,
                             step_it=jnp.where(cut, 0, step_it), cuts=s.cuts + cut, status=status,
-                            damped=jnp.where(cut, 0, damped), shift_memory=shift_memory), opts)
+                            damped=jnp.where(cut, 0, damped), shift_memory=shift_memory, inverting=inverting), opts)
 
 
 def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0):
@@ -399,7 +413,10 @@ def _cut_trust_region(s: _State, opts: NewtonOptions, ok):
     doubled the iterations of the stability map's nu = 0.499 translation cells (1,843 against 824)."""
     step_it = jnp.where(s.predictor, 0, s.step_it + 1)
     rejected = jnp.where(s.predictor | ok, 0, s.damped + 1)
-    cut = ((step_it >= opts.max_step_iters) & ~_finishing(s, opts, step_it)) | (rejected >= TRUST_REJECTIONS)
+    # a predictor that a bound (J > 0, the walls) cut below min_increment: the load step is cut, as the
+    # line search's is, else the next corrector closes it at once and the same predictor is tried again
+    cut = ((s.predictor & ~ok) | ((step_it >= opts.max_step_iters) & ~_finishing(s, opts, step_it))
+           | (rejected >= TRUST_REJECTIONS))
     return step_it, rejected, cut
 
 

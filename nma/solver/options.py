@@ -45,9 +45,9 @@ class NewtonOptions:
     # measured so far, takes the first stationary point Newton reaches.
     escape_saddles: bool = False
     # the step bound at each element's 4 x 4 check points too (corners included, where nma.geometry.validity
-    # evaluates det F), not only at its Gauss points: Newton never steps into material inverted between
-    # its Gauss points, so an equilibrium the model reaches only by inverting there is a failed solve,
-    # not a converged state that is not a physical object.  Always on with fidelity.inversion_barrier.
+    # evaluates det F), not only at its Gauss points: Newton never steps to det F <= 0 at those points, so
+    # an equilibrium the model reaches only by inverting there is a failed solve (INVERTS), not a
+    # converged state that is not a physical object.  Always on with fidelity.inversion_barrier.
     element_bound: bool = True
     # warm starts (host backends): a solve starts from the kept equilibrium nearest in actuation (of
     # the last warm_pool solves) where that is nearer than rest, and walks the load from there; one

@@ -99,7 +99,10 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         resolution = {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
         if changed & resolution and all(old.get(k) == 5 for k in resolution):
             hints.append("it trained at the paper's 5 x 5: add fidelity=paper")
-        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution
+        bound = "solver.element_bound"  # Newton's element bound, the default since these runs trained
+        if bound in changed and bound not in old:
+            hints.append("it trained without Newton's element bound: add solver.element_bound=false")
+        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution or k == bound
                                                          for k in changed) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "

@@ -43,8 +43,8 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
     cfg = OmegaConf.load(saved)
-    if "solver" in cfg and "element_bound" not in cfg.solver:  # trained before the bound was Newton's default:
-        cfg.solver.element_bound = False                         # its equilibria are re-solved as it found them
+    if "element_bound" not in cfg.get("solver", {}):  # trained before the bound was Newton's default: its
+        cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}  # states are re-solved as it found them
     try:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
@@ -130,9 +130,12 @@ def fingerprint(s: TrainConfig) -> dict:
     scene = asdict(s.scene)
     del scene["contact"]  # the scene's default for contact=auto: the resolved choice is s.contact, below
     del scene["fidelity"]  # the scene's default for fidelity=scene: the resolved setting is s.fidelity
+    # which solves fail (and give no gradient): Newton's element bound (unset when off, as before it existed)
+    solver = {"element_bound": True} if s.solver.element_bound else {}
     return {"task": task, "scene": scene, "model": asdict(s.model),
             "fidelity": fidelity, "material": material, "optim": asdict(s.optim),
-            "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {})}
+            "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {}),
+            **({"solver": solver} if solver else {})}
 
 
 def _sha256(path: Path) -> str | None:

@@ -32,7 +32,7 @@ from ..geometry.validity import StateChecker, summarise
 from ..mechanics.energy import inversion_penalty
 if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads their fields only
     from ..schema import OptimConfig, TrainerConfig
-from ..solver.newton import CONVERGED, NONFINITE_INPUT, failure
+from ..solver.newton import CONVERGED, INVERTS, NONFINITE_INPUT, failure
 from . import checkpoint
 from .mpi import World
 
@@ -95,6 +95,7 @@ class Trainer:
         self.state = {"params": params, "opt_state": self.tx.init(params), "step": 0}
         self.history: list[dict] = []
         self._warm_stop_said = False
+        self._inverts_said = False  # the warning that training solves stop at the element bound, once a run
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
         self._update = jax.jit(self._apply)
         self._evaluate = jax.jit(self._forward)
@@ -171,9 +172,10 @@ class Trainer:
         flat, unravel = ravel_pytree(grads)
         status = np.asarray(status)
         local = np.concatenate([np.asarray(flat), [float(loss_sum), float(np.sum(ok)),
-                                                   float(np.sum(status == NONFINITE_INPUT))]])
+                                                   float(np.sum(status == NONFINITE_INPUT)),
+                                                   float(np.sum(status == INVERTS))]])
         total = self.world.allreduce_sum(local)
-        n_ok, n_nonfinite = int(round(total[-2])), int(round(total[-1]))
+        n_ok, n_nonfinite, n_inverts = (int(round(v)) for v in total[-3:])
         if n_nonfinite:
             raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
                                                      f"are not finite, so nothing could be solved"))
@@ -186,11 +188,18 @@ class Trainer:
             log.warning("step %d: warm starts stopped: %s; solves start from rest until the next checkpoint",
                         step + 1, warm.stopped)
             self._warm_stop_said = True
-        mean_grads = unravel(jnp.asarray(total[:-3] / n_ok))
+        if n_inverts and self.cfg.inversion_penalty == 0 and not self._inverts_said:
+            log.warning("step %d: %d training solves stopped where the material would invert between Gauss points "
+                        "(solver.element_bound); they give no gradient, so nothing steers the design away from "
+                        "them: trainer.inversion_penalty does (docs/validity.md)", step + 1, n_inverts)
+            self._inverts_said = True
+        mean_grads = unravel(jnp.asarray(total[:-4] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
         self.state = {"params": params, "opt_state": opt_state, "step": step + 1}
-        rec = {"step": step + 1, "loss": float(total[-3] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
+        rec = {"step": step + 1, "loss": float(total[-4] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
                "seconds": time.perf_counter() - t0}
+        if n_inverts:  # of the failed solves, those the element bound stopped
+            rec["stopped_inverting"] = n_inverts
         skipped = int(opt_state.notfinite_count)
         if skipped:  # optax.apply_if_finite left the parameters as they were
             rec["skipped_update"] = 1
