@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from hydra import compose, initialize_config_dir
 
 from conftest import FAST, _flatten, assert_same_params, final_params, nma_run
@@ -17,6 +18,7 @@ def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
     assert_same_params(final_params(tmp_path), final_params(translation_run), rtol=1e-9)
 
 
+@pytest.mark.slow  # an end-to-end MPI run; test_mpi_two_ranks_match_single_process covers MPI in the fast suite
 def test_mpi_rotation_experiment_lands_in_its_task_directory(tmp_path):
     cmd = ["mpiexec", "-n", "2", sys.executable, "-m", "nma.run", "experiment=repro_rotation_double",
            "trainer.steps=1", "trainer.batch_size=2", "trainer.eval_every=1", "task.eval_angles=2",

@@ -170,6 +170,7 @@ def test_a_force_goal_trains(tmp_path):
     assert all(moved)  # every parameter (network and radii) took a finite step
 
 
+@pytest.mark.slow  # three trainings; test_a_spec_trains_as_its_class and the force-goal tests cover YAML tasks fast
 def test_the_tutorials_commands_run(tmp_path):
     """docs/tutorial.md's training commands, at debug size (two steps at the fast discretisation): the
     scene and the tasks it poses in YAML train, learned and frozen, a distance and a pore's area."""
