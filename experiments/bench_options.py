@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 from bench_solver import objective, stats
-from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ["translation", "rotation_single", "rotation_double", "shape_matching", "digital_mnist"]
@@ -53,6 +52,7 @@ def bench_scene(scene: str, repeats: int, option: str = "contact") -> dict:
     from nma.geometry.validity import StateChecker
     from nma.mechanics.contact import smallest_gap
     from nma.mechanics.material import material
+    from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
     mat = material(0.07, 0.3)
     d_max = config.load("task", scene)["d_max"]

@@ -25,7 +25,6 @@ import numpy as np
 
 import stability_map  # the sibling script (this directory is on the path when run as a script)
 from nma.mechanics.options import FORMULATIONS
-from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = {"corrector": ("line_search", "trust_region"), "element_bound": (False, True)}  # the two values compared
@@ -87,6 +86,8 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
 
 
 def table(records: list[dict], setting: str = "corrector") -> list[str]:
+    from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
+
     values = [label(setting, v) for v in SETTINGS[setting]]
     lines = [f"| scene | converged: {' / '.join(values)} | iterations, all solves | seconds, all solves | "
              "both converged: same equilibrium | saddles | physical of the converged |", "|---|---|---|---|---|---|---|"]

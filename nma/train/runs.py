@@ -43,8 +43,9 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
     cfg = OmegaConf.load(saved)
-    if "element_bound" not in cfg.get("solver", {}):  # trained before the bound was Newton's default: its
-        cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}  # states are re-solved as it found them
+    # a run trained before Newton's element bound was the default: its states are re-solved as it found them
+    if "element_bound" not in cfg.get("solver", {}):
+        cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}
     try:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
