@@ -46,9 +46,8 @@ import numpy as np
 
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
-from ..mechanics.energy import (Quadrature, deformation_gradient, energy_force_tangents, quadrature, step_bounds,
+from ..mechanics.energy import (Quadrature, check_point_dets, energy_force_tangents, quadrature, step_bounds,
                                 strain_energy)
-from ..mechanics.material import det2
 from .assembly import element_dofs
 from .options import NewtonOptions
 
@@ -234,9 +233,8 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     if start is not None and opts.element_bound:
         # a start inverted between Gauss points under this design (it moved since): no bound holds from
         # there, so the warm solve ends at once (INVERTS) and is redone cold
-        Jc = det2(deformation_gradient(eqs.disc, quad, eqs.full(u0, u_D0), at_checks=True))
-        inverted = jnp.any((Jc <= 0) & (quad.check_weights > 0))
-        status = jnp.where(finite & inverted, INVERTS, status)
+        J, defined = check_point_dets(eqs.disc, X, eqs.full(u0, u_D0))
+        status = jnp.where(finite & jnp.any((J <= 0) & defined), INVERTS, status)
     init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   status, tol, k_ref, scalar(jnp.inf),
