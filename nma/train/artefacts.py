@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.transforms import Bbox  # noqa: E402
 
 from ..io.fields import sampler, write_fields  # noqa: E402
 from .trainer import Evaluation  # noqa: E402
@@ -94,8 +95,8 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
     target, what it reached and its error."""
     X, u, out, ts, ok = evaluation.X, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
     pick, rows, cols, place = _layout(task, ts, limit)
-    fig, axes = plt.subplots(rows, cols, figsize=(2.1 * cols, 2.2 * rows + 0.9), sharex=True, sharey=True,
-                             squeeze=False)
+    # one scale set once below, not sharex/sharey: shared axes rescale every sibling at each drawing
+    fig, axes = plt.subplots(rows, cols, figsize=(2.1 * cols, 2.2 * rows + 0.9), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     per = evaluation.record["per_sample"]
@@ -110,6 +111,12 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
         if invalid:
             ax.title.set_color(ACTUATED)
         _draw_target(ax, task, out[i], ts[i])
+    drawn = [axes[r, c] for r, c in place]
+    box = Bbox.union([ax.dataLim for ax in drawn])
+    pad = 0.05 * max(box.width, box.height)
+    for ax in drawn:
+        ax.set_xlim(box.x0 - pad, box.x1 + pad)
+        ax.set_ylim(box.y0 - pad, box.y1 + pad)
     handles, labels = axes[place[0]].get_legend_handles_labels()
     shown = "every evaluation sample" if len(pick) == len(ts) else f"{len(pick)} of the {len(ts)} evaluation samples"
     n_invalid = evaluation.record["invalid_states"]
@@ -184,7 +191,8 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
     fig, ax = plt.subplots(figsize=(4.4, 4.4 * (hi - lo)[1] / (hi - lo)[0] + 0.6))
 
     def draw(i):
-        ax.clear()
+        for artist in [*ax.collections, *ax.lines, *ax.patches]:
+            artist.remove()  # the last frame's drawing; ax.clear() would rebuild the axes (most of a frame's time)
         title = f"{task.describe(ts[i])}: error {sweep.record['per_sample'][i]:.3g}"
         if getattr(task, "display", None) is not None:
             _colour_panel(ax, task, np.asarray(X + u[i]), geom, title)

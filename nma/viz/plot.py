@@ -35,7 +35,7 @@ def draw_shape(ax, disc: Discretisation, points, title: str = "", colour=MATERIA
         ax.plot(xy[:, 0], xy[:, 1], "o", color=TRACKED, ms=4, label="tracked point")
     ax.set_aspect("equal")
     ax.autoscale_view()
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title, fontsize=9, y=1.0)  # a fixed place: matplotlib's automatic one measures every tick at each draw
     if not frame:
         ax.axis("off")
 
