@@ -63,6 +63,40 @@ def test_window_score_reads_the_colour_under_it(task):
     np.testing.assert_allclose(grey, 0.5, atol=1e-12)
 
 
+def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeypatch):
+    """ColourDisplay.scores reads each window sample from its nearest patches only: on equilibria under
+    actuations up to d_max, with a colour field that is not uniform, it gives the scores and gradients of
+    reading every candidate point (scores_of) to round-off, with the weight it left out bounded below
+    EXCLUDED_WEIGHT; where that bound fails (one patch read) it reads every candidate point."""
+    import jax
+
+    import nma.tasks.digital_mnist as dm
+    from nma.mechanics.material import material
+
+    sim, t = task
+    params = sim.init_params()
+    colours = jax.random.normal(jax.random.PRNGKey(0), params["colours"].shape)
+    X = sim.reference_points(params)
+    d = jnp.asarray(np.random.default_rng(0).uniform(-t.d_max, t.d_max, (3, sim.n_actuations)))
+    u, info = sim.equilibrium_batch(X, d, material(0.07, 0.3))
+    assert np.all(np.asarray(info.status) == 1)
+    every = lambda x, c: t.display.scores_of(t.display.positions(x), t.display.colours(c))  # noqa: E731
+    for ui in u:
+        x = X + ui
+        _, left_out = t.display.scores_nearest(x, t.display.positions(x), t.display.colours(colours))
+        assert float(left_out) < np.log(dm.EXCLUDED_WEIGHT)
+        np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
+        weights = jnp.arange(1.0, 8.0)
+        grads = [jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1))(x, colours) for f in (t.display.scores, every)]
+        for a, b in zip(*grads):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(b))))
+    monkeypatch.setattr(dm, "NEAREST_PATCHES", 1)
+    x = X + u[0]
+    _, left_out = t.display.scores_nearest(x, t.display.positions(x), t.display.colours(colours))
+    assert float(left_out) > np.log(dm.EXCLUDED_WEIGHT)  # one patch cannot be enough: read them all
+    np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
+
+
 def test_loss_and_metrics_follow_the_table(task):
     _, t = task
     ts = jnp.concatenate([jnp.array([[3.0], [1.0]]), jnp.zeros((2, 784))], axis=1)

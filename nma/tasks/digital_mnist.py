@@ -57,6 +57,10 @@ def mnist_split(seed: int, n_train_per_class: int) -> tuple[np.ndarray, np.ndarr
     return X[train] / 255.0, y[train], X[test] / 255.0, y[test]
 
 
+NEAREST_PATCHES = 6      # patches a window sample reads its colour from (ColourDisplay)
+EXCLUDED_WEIGHT = 1e-13  # the most the patches it does not read may weigh, relative to its nearest point
+
+
 def window_points(windows, samples: int) -> np.ndarray:
     """(W, samples^2, 2) grid points of each window [x0, x1, y0, y1], edges included."""
     out = []
@@ -72,7 +76,14 @@ class ColourDisplay:
     Only material points within `reach` (reference distance) of a window can weigh in its score:
     a window sample always has material within half a sample spacing (the windows lie inside solid
     strips), so at temperature 10 a point 2 units further away weighs less than e^-80 of it, and no
-    point moves more than reach / 2 under actuations of at most d_max <= reach / 2."""
+    point moves more than reach / 2 under actuations of at most d_max <= reach / 2.
+
+    A sample's weights, softmax(temperature / distance), fall off so fast that it reads only the points
+    of the NEAREST_PATCHES patches nearest it (of its window's candidates, nearest by the distance to
+    the box of the patch's deformed control points, which holds all its material: a B-spline patch lies
+    in the convex hull of its control points), a tenth of the candidates.  What the patches left out
+    could weigh is bounded by their nearest box; where that exceeds EXCLUDED_WEIGHT of the nearest
+    point read, the state is read over every candidate point instead (`scores_of`)."""
 
     def __init__(self, disc, windows, window_samples: int, colour_samples: int, temperature: float,
                  reach: float):
@@ -89,6 +100,12 @@ class ColourDisplay:
         width = max(len(n) for n in near)
         self.candidates = jnp.asarray(np.stack([np.pad(n, (0, width - len(n))) for n in near]))
         self.valid = jnp.asarray(np.stack([np.arange(width) < len(n) for n in near]))
+        # the same candidates by patch (positions are patch-major, colour_samples^2 points a patch)
+        self.n_patches, self.per_patch = int(disc.patch_points.shape[0]), colour_samples ** 2
+        patches = [np.unique(n // self.per_patch) for n in near]
+        width = max(len(p) for p in patches)
+        self.window_patches = jnp.asarray(np.stack([np.pad(p, (0, width - len(p))) for p in patches]))
+        self.window_patches_valid = jnp.asarray(np.stack([np.arange(width) < len(p) for p in patches]))
 
     @staticmethod
     def _distance_to_box(points, box):
@@ -107,8 +124,40 @@ class ColourDisplay:
         return jax.nn.sigmoid(logits).reshape(-1)
 
     def scores(self, points, colour_nets) -> jnp.ndarray:
-        """(W,) each window's mean softmax-weighted colour, for deformed control points `points`."""
-        return self.scores_of(self.positions(points), self.colours(colour_nets))
+        """(W,) each window's mean softmax-weighted colour, for deformed control points `points`: read from
+        each sample's nearest patches where what the others could weigh is below EXCLUDED_WEIGHT, else
+        over every candidate point (under vmap both are computed; nma.train maps over samples instead)."""
+        pos, col = self.positions(points), self.colours(colour_nets)
+        nearest, left_out = self.scores_nearest(points, pos, col)
+        return jax.lax.cond(left_out <= np.log(EXCLUDED_WEIGHT), lambda: nearest, lambda: self.scores_of(pos, col))
+
+    def scores_nearest(self, points, pos, col) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """(W,) window scores read from each sample's NEAREST_PATCHES nearest patches, and the log of the
+        most the patches left out could weigh, relative to the nearest point read (the largest over samples)."""
+        s2 = self.per_patch
+        pos, col = pos.reshape(self.n_patches, s2, 2), col.reshape(self.n_patches, s2)
+        ctrl = jax.lax.stop_gradient(points[self.patch_points])  # which patches are read: no gradient
+        lo, hi = ctrl.min(axis=1), ctrl.max(axis=1)
+        width = self.window_patches.shape[1]
+        k = min(NEAREST_PATCHES, width)
+
+        def window(samples, patches, valid):
+            gap = jnp.maximum(jnp.maximum(lo[patches][None] - samples[:, None], samples[:, None] - hi[patches][None]), 0.0)
+            box = jnp.where(valid, jnp.sqrt(jnp.sum(gap ** 2, axis=-1)), jnp.inf)  # (samples, width): no point nearer
+            neg, order = jax.lax.top_k(-box, width)  # every candidate patch, nearest box first
+            read = patches[order[:, :k]]  # (samples, k)
+            d = jnp.sqrt(jnp.sum((pos[read] - samples[:, None, None]) ** 2, axis=-1) + 1e-24)
+            logits = jnp.where(valid[order[:, :k]][..., None], self.temperature / d, -jnp.inf).reshape(len(samples), -1)
+            score = jnp.mean(jnp.sum(jax.nn.softmax(logits, axis=-1) * col[read].reshape(len(samples), -1), axis=-1))
+            if k == width:
+                return score, -jnp.inf
+            # each patch left out: at most s2 points, none nearer than its box
+            left_out = (jax.nn.logsumexp(self.temperature / -neg[:, k:], axis=-1) + np.log(s2)
+                        - jnp.max(logits, axis=-1))
+            return score, jnp.max(left_out)
+
+        scores, left_out = jax.vmap(window)(self.windows, self.window_patches, self.window_patches_valid)
+        return scores, jnp.max(left_out)
 
     def scores_of(self, pos, col) -> jnp.ndarray:
         """(W,) window scores of material points at `pos` (n, 2) with colours `col` (n,)."""

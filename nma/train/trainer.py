@@ -37,7 +37,6 @@ from . import checkpoint
 from .mpi import World
 
 log = logging.getLogger(__name__)
-OBSERVE_CHUNK = 8  # samples observed at once
 
 
 @dataclass
@@ -137,9 +136,10 @@ class Trainer:
         X = self.sim.reference_points(params["geom"])
         d = self.model.apply(params["net"], self.task.net_input(ts))
         u, info = self.sim.equilibrium_batch(X, d, self.mat)
-        # in chunks: an evaluation set may be large, and an observation (the colour display) is not small
+        # one at a time: an evaluation set may be large, an observation (the colour display) is not small,
+        # and a branch in one runs only where taken (lax.map with a batch_size vmaps, and computes both)
         observe = lambda ui: self.task.observe(self.sim, params["geom"], X, ui, self.mat)
-        out = jax.lax.map(observe, u, batch_size=OBSERVE_CHUNK)
+        out = jax.lax.map(observe, u)
         return X, d, u, out, info
 
     def _loss_sum(self, params, ts):
