@@ -53,7 +53,7 @@ def solve(overrides: list[str], batches: int, evaluate: int) -> dict:
     for ts in groups:
         d = trainer.model.apply(params["net"], trainer.task.net_input(ts))
         eq = trainer.sim.equilibrium_batch(X, d, trainer.mat)
-        out = jax.vmap(lambda u: trainer.task.observe(trainer.sim, params["geom"], X, u, trainer.mat))(eq.u)
+        out = jax.lax.map(lambda u: trainer.task.observe(trainer.sim, params["geom"], X, u, trainer.mat), eq.u)
         r["u"].append(np.asarray(eq.u))
         r["iterations"] += np.asarray(eq.info.iterations).tolist()
         r["load_steps"] += np.asarray(eq.info.load_steps).tolist()

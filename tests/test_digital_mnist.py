@@ -81,19 +81,20 @@ def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeyp
     u, info = sim.equilibrium_batch(X, d, material(0.07, 0.3))
     assert np.all(np.asarray(info.status) == 1)
     every = lambda x, c: t.display.scores_of(t.display.positions(x), t.display.colours(c))  # noqa: E731
+    nearest = lambda x, c: t.display.scores_nearest(x, t.display.positions(x), t.display.colours(c))  # noqa: E731
+    weights = jnp.arange(1.0, 8.0)
+    grad = lambda f: jax.jit(jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1)))  # noqa: E731
     for ui in u:
         x = X + ui
-        _, left_out = t.display.scores_nearest(x, t.display.positions(x), t.display.colours(colours))
-        assert float(left_out) < np.log(dm.EXCLUDED_WEIGHT)
+        assert float(nearest(x, colours)[1]) < np.log(dm.EXCLUDED_WEIGHT)
         np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
-        weights = jnp.arange(1.0, 8.0)
-        grads = [jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1))(x, colours) for f in (t.display.scores, every)]
-        for a, b in zip(*grads):
+        for a, b in zip(grad(t.display.scores)(x, colours), grad(every)(x, colours)):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(b))))
     monkeypatch.setattr(dm, "NEAREST_PATCHES", 1)
     x = X + u[0]
-    _, left_out = t.display.scores_nearest(x, t.display.positions(x), t.display.colours(colours))
+    one_patch, left_out = nearest(x, colours)
     assert float(left_out) > np.log(dm.EXCLUDED_WEIGHT)  # one patch cannot be enough: read them all
+    assert float(jnp.max(jnp.abs(one_patch - every(x, colours)))) > 1e-6
     np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
 
 

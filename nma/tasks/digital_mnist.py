@@ -61,6 +61,13 @@ NEAREST_PATCHES = 6      # patches a window sample reads its colour from (Colour
 EXCLUDED_WEIGHT = 1e-13  # the most the patches it does not read may weigh, relative to its nearest point
 
 
+def _padded(rows: list[np.ndarray]) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Index lists of different lengths as one array, padded with index 0, and where each entry is real."""
+    width = max(len(r) for r in rows)
+    return (jnp.asarray(np.stack([np.pad(r, (0, width - len(r))) for r in rows])),
+            jnp.asarray(np.stack([np.arange(width) < len(r) for r in rows])))
+
+
 def window_points(windows, samples: int) -> np.ndarray:
     """(W, samples^2, 2) grid points of each window [x0, x1, y0, y1], edges included."""
     out = []
@@ -81,9 +88,11 @@ class ColourDisplay:
     A sample's weights, softmax(temperature / distance), fall off so fast that it reads only the points
     of the NEAREST_PATCHES patches nearest it (of its window's candidates, nearest by the distance to
     the box of the patch's deformed control points, which holds all its material: a B-spline patch lies
-    in the convex hull of its control points), a tenth of the candidates.  What the patches left out
-    could weigh is bounded by their nearest box; where that exceeds EXCLUDED_WEIGHT of the nearest
-    point read, the state is read over every candidate point instead (`scores_of`)."""
+    in the convex hull of its control points): a tenth of the candidate patches, a sixth of the
+    candidate points.  It reads all of those patches' points, also the few beyond `reach` that
+    `scores_of` leaves out (which weigh less than e^-80, above).  What the patches left out could weigh
+    is bounded by their nearest box; where that exceeds EXCLUDED_WEIGHT of the nearest point read, at
+    any sample, the state is read over every candidate point instead (`scores_of`)."""
 
     def __init__(self, disc, windows, window_samples: int, colour_samples: int, temperature: float,
                  reach: float):
@@ -97,15 +106,10 @@ class ColourDisplay:
         self.temperature = temperature
         X0 = np.asarray(self.positions(disc.reference_points(disc.init_params())))
         near = [np.flatnonzero(self._distance_to_box(X0, box) <= reach) for box in windows]
-        width = max(len(n) for n in near)
-        self.candidates = jnp.asarray(np.stack([np.pad(n, (0, width - len(n))) for n in near]))
-        self.valid = jnp.asarray(np.stack([np.arange(width) < len(n) for n in near]))
+        self.candidates, self.valid = _padded(near)
         # the same candidates by patch (positions are patch-major, colour_samples^2 points a patch)
         self.n_patches, self.per_patch = int(disc.patch_points.shape[0]), colour_samples ** 2
-        patches = [np.unique(n // self.per_patch) for n in near]
-        width = max(len(p) for p in patches)
-        self.window_patches = jnp.asarray(np.stack([np.pad(p, (0, width - len(p))) for p in patches]))
-        self.window_patches_valid = jnp.asarray(np.stack([np.arange(width) < len(p) for p in patches]))
+        self.window_patches, self.window_patches_valid = _padded([np.unique(n // self.per_patch) for n in near])
 
     @staticmethod
     def _distance_to_box(points, box):
@@ -142,7 +146,8 @@ class ColourDisplay:
         k = min(NEAREST_PATCHES, width)
 
         def window(samples, patches, valid):
-            gap = jnp.maximum(jnp.maximum(lo[patches][None] - samples[:, None], samples[:, None] - hi[patches][None]), 0.0)
+            at = samples[:, None]
+            gap = jnp.maximum(jnp.maximum(lo[patches][None] - at, at - hi[patches][None]), 0.0)
             box = jnp.where(valid, jnp.sqrt(jnp.sum(gap ** 2, axis=-1)), jnp.inf)  # (samples, width): no point nearer
             neg, order = jax.lax.top_k(-box, width)  # every candidate patch, nearest box first
             read = patches[order[:, :k]]  # (samples, k)
@@ -152,8 +157,8 @@ class ColourDisplay:
             if k == width:
                 return score, -jnp.inf
             # each patch left out: at most s2 points, none nearer than its box
-            left_out = (jax.nn.logsumexp(self.temperature / -neg[:, k:], axis=-1) + np.log(s2)
-                        - jnp.max(logits, axis=-1))
+            beyond = jnp.where(jnp.isfinite(neg[:, k:]), self.temperature / -neg[:, k:], -jnp.inf)  # padding weighs 0
+            left_out = jax.nn.logsumexp(beyond, axis=-1) + np.log(s2) - jnp.max(logits, axis=-1)
             return score, jnp.max(left_out)
 
         scores, left_out = jax.vmap(window)(self.windows, self.window_patches, self.window_patches_valid)

@@ -255,7 +255,7 @@ def _colour_panel(ax, task, points, geom, title):
     for (x0, x1, y0, y1) in np.asarray(task.display_windows):
         ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#d62728", lw=0.6))
     ax.set_aspect("equal")
-    ax.set_title(title, fontsize=8)
+    ax.set_title(title, fontsize=8, y=1.0)  # a fixed place, as draw_shape's
     ax.axis("off")
 
 
