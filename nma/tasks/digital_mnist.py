@@ -68,6 +68,12 @@ def _padded(rows: list[np.ndarray]) -> tuple[jnp.ndarray, jnp.ndarray]:
             jnp.asarray(np.stack([np.arange(width) < len(r) for r in rows])))
 
 
+def _box_distance(points, lo, hi) -> jnp.ndarray:
+    """Distance from points (..., 2) to the axis-aligned boxes from lo to hi (..., 2); 0 inside."""
+    gap = jnp.maximum(jnp.maximum(lo - points, points - hi), 0.0)
+    return jnp.sqrt(jnp.sum(gap ** 2, axis=-1))
+
+
 def window_points(windows, samples: int) -> np.ndarray:
     """(W, samples^2, 2) grid points of each window [x0, x1, y0, y1], edges included."""
     out = []
@@ -105,18 +111,12 @@ class ColourDisplay:
         self.windows = jnp.asarray(window_points(windows, window_samples))    # (W, k, 2)
         self.temperature = temperature
         X0 = np.asarray(self.positions(disc.reference_points(disc.init_params())))
-        near = [np.flatnonzero(self._distance_to_box(X0, box) <= reach) for box in windows]
+        near = [np.flatnonzero(np.asarray(_box_distance(X0, np.array([x0, y0]), np.array([x1, y1]))) <= reach)
+                for x0, x1, y0, y1 in windows]
         self.candidates, self.valid = _padded(near)
         # the same candidates by patch (positions are patch-major, colour_samples^2 points a patch)
         self.n_patches, self.per_patch = int(disc.patch_points.shape[0]), colour_samples ** 2
         self.window_patches, self.window_patches_valid = _padded([np.unique(n // self.per_patch) for n in near])
-
-    @staticmethod
-    def _distance_to_box(points, box):
-        x0, x1, y0, y1 = box
-        dx = np.maximum(np.maximum(x0 - points[:, 0], points[:, 0] - x1), 0.0)
-        dy = np.maximum(np.maximum(y0 - points[:, 1], points[:, 1] - y1), 0.0)
-        return np.hypot(dx, dy)
 
     def positions(self, points) -> jnp.ndarray:
         """(P * s^2, 2) colour material points for control points `points` (X or X + u)."""
@@ -146,9 +146,8 @@ class ColourDisplay:
         k = min(NEAREST_PATCHES, width)
 
         def window(samples, patches, valid):
-            at = samples[:, None]
-            gap = jnp.maximum(jnp.maximum(lo[patches][None] - at, at - hi[patches][None]), 0.0)
-            box = jnp.where(valid, jnp.sqrt(jnp.sum(gap ** 2, axis=-1)), jnp.inf)  # (samples, width): no point nearer
+            # (samples, width): no point of a patch is nearer than its box
+            box = jnp.where(valid, _box_distance(samples[:, None], lo[patches][None], hi[patches][None]), jnp.inf)
             neg, order = jax.lax.top_k(-box, width)  # every candidate patch, nearest box first
             read = patches[order[:, :k]]  # (samples, k)
             d = jnp.sqrt(jnp.sum((pos[read] - samples[:, None, None]) ** 2, axis=-1) + 1e-24)
