@@ -53,19 +53,34 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
                                        "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc, s.fidelity),
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
-    log.info("final %s = %.4g %s after %d steps; %sthe initial design at rest, no actuation: %.4g",
-             task.metric_name, evaluation.record[task.metric_name], task.metric_unit, trainer.state["step"],
+    r = evaluation.record
+    failed, n = r["failed_solves"], len(r["per_sample"])
+    over = f" (over the {n - failed} of {n} solves that converged)" if failed else ""
+    log.info("final %s = %.4g %s%s after %d steps; %sthe initial design at rest, no actuation: %.4g",
+             task.metric_name, r[task.metric_name], task.metric_unit, over, trainer.state["step"],
              "" if floor is None or s.trainer.freeze_geometry else
              f"the initial design with its geometry frozen can do no better than {floor[0]:.4g} ({floor[1]}); ",
              at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
-    if evaluation.record["invalid_states"]:
+    if failed:
+        log.warning(failed_solves(r))
+    if r["invalid_states"]:
         from .geometry.validity import describe
 
         log.warning("%s. They are marked in figures/deformed.png and listed in metrics.json (invalid_samples).",
-                    describe(evaluation.record, evaluation.record["invalid_samples"], s.contact.enabled))
-    return evaluation.record
+                    describe(r, r["invalid_samples"], s.contact.enabled))
+    return r
+
+
+def failed_solves(record: dict) -> str:
+    """What an evaluation's failed solves were, in a line: its metric is the mean over the others."""
+    failed, n = record["failed_solves"], len(record["per_sample"])
+    why = [f"{k} {what}" for k, what in [
+        (record["stopped_inverting"], "stopped where the material would invert between Gauss points (solver.element_bound)"),
+        (failed - record["stopped_inverting"], "did not converge")] if k]
+    return (f"{failed} of the final evaluation's {n} solves failed ({'; '.join(why)}): the metric is the mean over "
+            f"the other {n - failed}. metrics.json lists them (failed_samples).")
 
 
 def validate_in(cfg: DictConfig, run_dir: Path):

@@ -165,6 +165,33 @@ def test_the_inversion_penalty_adds_its_weighted_term_to_each_converged_samples_
     np.testing.assert_allclose(np.asarray(trainer._loss_sum(params, ts)[1][1]), task_losses, rtol=1e-12)
 
 
+def test_an_evaluation_says_which_solves_failed_and_why(simulator, tmp_path):
+    """Newton given 2 iterations leaves most solves of the evaluation unconverged: the record lists them,
+    none stopped by the element bound, the metric is the mean over the others, and the run's warning line
+    says so.  The element bound's reason is worded from its count (tests/test_solver.py checks the status)."""
+    from nma.mechanics.material import material
+    from nma.models.mlp import mlp
+    from nma.run import failed_solves
+    from nma.schema import OptimConfig, TrainerConfig, TranslationTask
+    from nma.tasks.translation import translation
+    from nma.train.trainer import Trainer
+
+    sim = simulator("translation", solver={"max_iters": 2}, quad_points=3)
+    task = translation(TranslationTask(eval_grid=2), sim)
+    trainer = Trainer(task, sim, mlp([4], sim.n_actuations, task.d_max), material(0.07, 0.3),
+                      TrainerConfig(steps=1, progress=False), OptimConfig(), tmp_path)
+    r = trainer.evaluate().record
+    failed = r["failed_samples"]
+    assert 0 < len(failed) == r["failed_solves"] < 4 and r["stopped_inverting"] == 0
+    others = np.delete(np.asarray(r["per_sample"]), failed)
+    assert r[task.metric_name] == pytest.approx(np.mean(others), rel=1e-12)
+    assert failed_solves(r).startswith(f"{len(failed)} of the final evaluation's 4 solves failed ({len(failed)} did not "
+                                       f"converge): the metric is the mean over the other {4 - len(failed)}.")
+    line = failed_solves({**r, "failed_solves": 3, "stopped_inverting": 2})
+    assert "(2 stopped where the material would invert between Gauss points (solver.element_bound); 1 did not " \
+           "converge): the metric is the mean over the other 1." in line
+
+
 @pytest.mark.slow
 def test_digital_mnist_phases_chain(tmp_path):
     """Lookup table -> network fitted to it (no simulation) -> end-to-end fine-tuning, each phase

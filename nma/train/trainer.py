@@ -245,7 +245,8 @@ class Trainer:
         """The metric on the task's evaluation set (or on descriptors `ts`) at the current parameters."""
         ts = self.task.eval_set() if ts is None else ts
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
-        ok = np.asarray(info.status) == CONVERGED
+        status = np.asarray(info.status)
+        ok = status == CONVERGED
         metric = np.asarray(jax.vmap(self.task.metric)(out, ts))
         value = float(np.mean(metric[ok])) if ok.any() else float("nan")
         # is every converged state a physical object? (no inverted material, no wall through a wall)
@@ -253,6 +254,7 @@ class Trainer:
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
+                  "stopped_inverting": int((status == INVERTS).sum()),  # of the failed, those the element bound stopped
                   **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
         warm = self.sim.warm_starts
