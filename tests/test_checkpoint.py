@@ -54,7 +54,8 @@ def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(tmp_pa
 @pytest.mark.parametrize("change, named", [("trainer.batch_size=4", "trainer.batch_size: 2 -> 4"),
                                            ("model.hidden=[8]", "model.hidden: None -> [8]"),
                                            ("task.box_half_width=1.0", "task.box_half_width: 1.5 -> 1.0"),
-                                           ("trainer.inversion_penalty=0.1", "trainer.inversion_penalty: '(unset)' -> 0.1"),
+                                           ("trainer.inversion_penalty=0.2", "trainer.inversion_penalty: 0.1 -> 0.2"),
+                                           ("trainer.inversion_penalty=0", "trainer.inversion_penalty: 0.1 -> '(unset)'"),
                                            # a run from before contact=auto, resumed where the scene now says on
                                            ("contact=on", "(it trained without contact: add contact=off)")])
 def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translation_run, monkeypatch, capsys,
@@ -101,6 +102,23 @@ def test_a_run_trained_before_the_element_bound_is_told_to_add_it_off():
                                           r"Newton's element bound: add solver.element_bound=false\)"):
         check_fingerprint("c", {"config": json.dumps(before)}, today)
     check_fingerprint("c", {"config": json.dumps(before)}, before)  # with it off: the same fingerprint
+
+
+def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
+    """A checkpoint from before the inversion penalty was a default records none; resumed with today's
+    default it stops naming the fields and the override that resumes it as it trained."""
+    import json
+
+    from nma.train.checkpoint import check_fingerprint
+
+    before = {"trainer": {"seed": 0}}
+    today = {"trainer": {"seed": 0, "inversion_penalty": 0.1, "inversion_margin": 0.2}}
+    with pytest.raises(ConfigError, match=r"trainer.inversion_penalty: '\(unset\)' -> 0.1\) \(it trained without "
+                                          r"the inversion penalty: add trainer.inversion_penalty=0\)"):
+        check_fingerprint("c", {"config": json.dumps(before)}, today)
+    with pytest.raises(ConfigError) as other:  # another change beside it: no hint
+        check_fingerprint("c", {"config": json.dumps(before)}, {"trainer": {**today["trainer"], "seed": 1}})
+    assert "add trainer.inversion_penalty=0" not in str(other.value)
 
 
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])

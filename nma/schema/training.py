@@ -56,10 +56,11 @@ class TrainerConfig(Schema):
     animation_frames: int = bounded(24, "[0, 1000]", doc="frames of figures/sweep.gif, the material as the task's "
                                                         "descriptor sweeps its range; 0: none")
     max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
-    inversion_penalty: float = bounded(0.0, "[0, inf)", doc="weight of a loss term that steers the design away "
+    inversion_penalty: float = bounded(0.1, "[0, inf)", doc="weight of a loss term that steers the design away "
                                        "from states that invert between Gauss points: the sum over every element's "
                                        "4 x 4 check points of max(0, inversion_margin - det F)^2 (nma.mechanics.energy, "
-                                       "inversion_penalty); 0: off. Tasks that solve nothing (the MNIST fit) have no states for it")
+                                       "inversion_penalty); 0: off (the paper's objective alone). Tasks that solve "
+                                       "nothing (the MNIST fit) have no states for it")
     inversion_margin: float = bounded(0.2, "(0, 1)", doc="det F below which the inversion penalty acts")
     init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
     progress: bool = True

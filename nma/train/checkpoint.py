@@ -92,7 +92,8 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
     if diff:
         changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
-        # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5
+        # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
+        # and the inversion penalty a term of every loss
         hints = []
         if any(k.startswith("contact.") for k in changed) and not any(k.startswith("contact.") for k in old):
             hints.append("it trained without contact: add contact=off")
@@ -102,8 +103,11 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         bound = "solver.element_bound"  # Newton's element bound, the default since these runs trained
         if bound in changed and bound not in old:
             hints.append("it trained without Newton's element bound: add solver.element_bound=false")
-        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution or k == bound
-                                                         for k in changed) else ""
+        penalty = {"trainer.inversion_penalty", "trainer.inversion_margin"}
+        if changed & penalty and not penalty & old.keys():
+            hints.append("it trained without the inversion penalty: add trainer.inversion_penalty=0")
+        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution | penalty
+                                                         or k == bound for k in changed) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "
                           "or set trainer.resume=force to continue anyway")

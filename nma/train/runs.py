@@ -113,7 +113,7 @@ def fingerprint(s: TrainConfig) -> dict:
     trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
     if s.optim.schedule != "constant":
         trainer["steps"] = s.trainer.steps  # the schedule's length
-    if s.trainer.inversion_penalty > 0:  # a term of the loss (unset: as before it existed, so earlier runs resume)
+    if s.trainer.inversion_penalty > 0:  # a term of the loss (0 leaves it out, as before it existed: earlier runs resume)
         trainer.update(inversion_penalty=s.trainer.inversion_penalty, inversion_margin=s.trainer.inversion_margin)
     material = asdict(s.material)
     if material["formulation"] == "displacement":
