@@ -45,7 +45,7 @@ BAD_RUN = [
     ("logger.mode=loud", "logger.mode must be one of ['offline', 'online', 'disabled'], got 'loud'"),
     ("scene.pinned=[1,2", "the command-line override 'scene.pinned=[1,2' does not parse"),
     # a discretisation far beyond any machine's memory (the element tangents alone: ~700 GiB)
-    ("fidelity.ctrl_per_patch=998", "fidelity.ctrl_per_patch=998 with 5 Gauss points needs at least"),
+    ("fidelity.ctrl_per_patch=998 fidelity.quad_points=5", "fidelity.ctrl_per_patch=998 with 5 Gauss points needs at least"),
     ("trainer.init_from=/nonexistent/run", "trainer.init_from=/nonexistent/run is not a directory"),
     # a task posed in YAML (nma.tasks.spec): every mistake names the field
     ("task=translation_spec scene=translation task.goal=spin",
