@@ -105,20 +105,33 @@ def test_a_run_trained_before_the_element_bound_is_told_to_add_it_off():
 
 
 def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
-    """A checkpoint from before the inversion penalty was a default records none; resumed with today's
-    default it stops naming the fields and the override that resumes it as it trained."""
+    """A translation checkpoint from before the inversion penalty was a default and translation's scene
+    stated 5 x 2 records no penalty and 5 x 5; resumed with today's defaults it stops naming both overrides
+    that resume it as it trained.  A hint is given only where the hints explain every changed field."""
+    import copy
     import json
 
+    from conftest import compose_cfg
     from nma.train.checkpoint import check_fingerprint
+    from nma.train.runs import fingerprint, validate
 
-    before = {"trainer": {"seed": 0}}
-    today = {"trainer": {"seed": 0, "inversion_penalty": 0.1, "inversion_margin": 0.2}}
-    with pytest.raises(ConfigError, match=r"trainer.inversion_penalty: '\(unset\)' -> 0.1\) \(it trained without "
-                                          r"the inversion penalty: add trainer.inversion_penalty=0\)"):
+    today = json.loads(json.dumps(fingerprint(validate(compose_cfg("task=translation", "logger=none")))))
+    assert today["trainer"]["inversion_penalty"] == 0.1 and today["fidelity"]["quad_points"] == 2
+    before = copy.deepcopy(today)
+    del before["trainer"]["inversion_penalty"], before["trainer"]["inversion_margin"]
+    before["fidelity"]["quad_points"] = 5
+    with pytest.raises(ConfigError) as both:
         check_fingerprint("c", {"config": json.dumps(before)}, today)
-    with pytest.raises(ConfigError) as other:  # another change beside it: no hint
-        check_fingerprint("c", {"config": json.dumps(before)}, {"trainer": {**today["trainer"], "seed": 1}})
-    assert "add trainer.inversion_penalty=0" not in str(other.value)
+    assert "trainer.inversion_penalty: '(unset)' -> 0.1" in str(both.value)
+    assert ("(it trained at the paper's 5 x 5: add fidelity=paper; it trained without the inversion penalty: add "
+            "trainer.inversion_penalty=0)") in str(both.value)
+    other_penalty = copy.deepcopy(before)
+    other_penalty["trainer"].update(inversion_penalty=0.2, inversion_margin=0.2)
+    for old, new in [(other_penalty, today),  # a penalty of its own: the 5 x 5 hint alone would not resume it
+                     (before, {**today, "trainer": {**today["trainer"], "seed": 1}})]:  # another change beside
+        with pytest.raises(ConfigError) as no_hint:
+            check_fingerprint("c", {"config": json.dumps(old)}, new)
+        assert "add fidelity=paper" not in str(no_hint.value) and "add trainer.inversion_penalty" not in str(no_hint.value)
 
 
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])

@@ -93,21 +93,27 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
         # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
-        # and the inversion penalty a term of every loss
-        hints = []
-        if any(k.startswith("contact.") for k in changed) and not any(k.startswith("contact.") for k in old):
-            hints.append("it trained without contact: add contact=off")
-        resolution = {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
-        if changed & resolution and all(old.get(k) == 5 for k in resolution):
-            hints.append("it trained at the paper's 5 x 5: add fidelity=paper")
-        bound = "solver.element_bound"  # Newton's element bound, the default since these runs trained
+        # Newton's element bound on, and the inversion penalty a term of every loss.  Each hint names the
+        # fields it explains; they are given only where together they explain every change.
+        hints, explained = [], set()
+
+        def default_changed(keys, why):
+            hints.append(why)
+            explained.update(keys)
+
+        contact = {k for k in changed if k.startswith("contact.")}
+        if contact and not any(k.startswith("contact.") for k in old):
+            default_changed(contact, "it trained without contact: add contact=off")
+        resolution = changed & {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
+        if resolution and all(old.get(k) == 5 for k in ("fidelity.ctrl_per_patch", "fidelity.quad_points")):
+            default_changed(resolution, "it trained at the paper's 5 x 5: add fidelity=paper")
+        bound = "solver.element_bound"
         if bound in changed and bound not in old:
-            hints.append("it trained without Newton's element bound: add solver.element_bound=false")
+            default_changed({bound}, "it trained without Newton's element bound: add solver.element_bound=false")
         penalty = {"trainer.inversion_penalty", "trainer.inversion_margin"}
         if changed & penalty and not penalty & old.keys():
-            hints.append("it trained without the inversion penalty: add trainer.inversion_penalty=0")
-        hint = f" ({'; '.join(hints)})" if hints and all(k.startswith("contact.") or k in resolution | penalty
-                                                         or k == bound for k in changed) else ""
+            default_changed(changed & penalty, "it trained without the inversion penalty: add trainer.inversion_penalty=0")
+        hint = f" ({'; '.join(hints)})" if hints and changed <= explained else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "
                           "or set trainer.resume=force to continue anyway")
