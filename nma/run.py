@@ -77,10 +77,12 @@ def failed_solves(record: dict) -> str:
     """What an evaluation's failed solves were, in a line: its metric is the mean over the others."""
     failed, n = record["failed_solves"], len(record["per_sample"])
     why = [f"{k} {what}" for k, what in [
-        (record["stopped_inverting"], "stopped where the material would invert between Gauss points (solver.element_bound)"),
+        (record["stopped_inverting"], "stopped at Newton's element bound (solver.element_bound), where the material "
+                                      "would invert between Gauss points"),
         (failed - record["stopped_inverting"], "did not converge")] if k]
-    return (f"{failed} of the final evaluation's {n} solves failed ({'; '.join(why)}): the metric is the mean over "
-            f"the other {n - failed}. metrics.json lists them (failed_samples).")
+    mean = f"the metric is the mean over the other {n - failed}" if failed < n else "no metric (NaN): none converged"
+    return (f"{failed} of the final evaluation's {n} solves failed ({'; '.join(why)}): {mean}. metrics.json lists "
+            f"them (failed_samples).")
 
 
 def validate_in(cfg: DictConfig, run_dir: Path):

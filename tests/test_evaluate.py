@@ -82,6 +82,7 @@ def test_evaluate_solves_with_the_runs_own_solver_unless_told(tmp_path, translat
     assert own["training_fidelity"]["failed_solves"] == 2 and own["evaluated_fidelity"]["failed_solves"] == 2
     assert own["solver"]["from"] == "run" and own["solver"]["max_iters"] == 2
     assert own["training_fidelity"]["failed_samples"] == [0, 1]  # which ones, not only how many
+    assert own["training_fidelity"]["stopped_inverting"] == 0  # and why: the iteration limit, not the element bound
     told = evaluate(EvaluateConfig(run=str(run), fidelity=Fidelity(5, 3), eval_subset=2, solver=SolverConfig()))
     assert told["training_fidelity"]["failed_solves"] == 0 and told["training_fidelity"]["failed_samples"] == []
 

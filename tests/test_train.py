@@ -188,8 +188,9 @@ def test_an_evaluation_says_which_solves_failed_and_why(simulator, tmp_path):
     assert failed_solves(r).startswith(f"{len(failed)} of the final evaluation's 4 solves failed ({len(failed)} did not "
                                        f"converge): the metric is the mean over the other {4 - len(failed)}.")
     line = failed_solves({**r, "failed_solves": 3, "stopped_inverting": 2})
-    assert "(2 stopped where the material would invert between Gauss points (solver.element_bound); 1 did not " \
-           "converge): the metric is the mean over the other 1." in line
+    assert "(2 stopped at Newton's element bound (solver.element_bound), where the material would invert between " \
+           "Gauss points; 1 did not converge): the metric is the mean over the other 1." in line
+    assert "): no metric (NaN): none converged." in failed_solves({**r, "failed_solves": 4, "stopped_inverting": 0})
 
 
 @pytest.mark.slow
