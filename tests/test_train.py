@@ -166,7 +166,7 @@ def test_the_inversion_penalty_adds_its_weighted_term_to_each_converged_samples_
 
 
 def test_an_evaluation_says_which_solves_failed_and_why(simulator, tmp_path):
-    """Newton given 2 iterations leaves most solves of the evaluation unconverged: the record lists them,
+    """Newton given 2 iterations leaves some solves of the evaluation unconverged: the record lists them,
     none stopped by the element bound, the metric is the mean over the others, and the run's warning line
     says so.  The element bound's reason is worded from its count (tests/test_solver.py checks the status)."""
     from nma.mechanics.material import material
