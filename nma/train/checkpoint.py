@@ -87,33 +87,27 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         return
     old = dict(_flatten(json.loads(raw["config"])))
     new = dict(_flatten(json.loads(json.dumps(fingerprint))))
-    diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}"
-            for k in sorted(old.keys() | new.keys()) if old.get(k) != new.get(k)]
-    if diff:
-        changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
+    changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
+    if changed:
+        diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}" for k in sorted(changed)]
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
         # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
-        # Newton's element bound on, and the inversion penalty a term of every loss.  Each hint names the
+        # Newton's element bound on, and the inversion penalty a term of every loss.  Each hint maps to the
         # fields it explains; they are given only where together they explain every change.
-        hints, explained = [], set()
-
-        def default_changed(keys, why):
-            hints.append(why)
-            explained.update(keys)
-
+        hints = {}
         contact = {k for k in changed if k.startswith("contact.")}
         if contact and not any(k.startswith("contact.") for k in old):
-            default_changed(contact, "it trained without contact: add contact=off")
+            hints["it trained without contact: add contact=off"] = contact
         resolution = changed & {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
         if resolution and all(old.get(k) == 5 for k in ("fidelity.ctrl_per_patch", "fidelity.quad_points")):
-            default_changed(resolution, "it trained at the paper's 5 x 5: add fidelity=paper")
+            hints["it trained at the paper's 5 x 5: add fidelity=paper"] = resolution
         bound = "solver.element_bound"
         if bound in changed and bound not in old:
-            default_changed({bound}, "it trained without Newton's element bound: add solver.element_bound=false")
+            hints["it trained without Newton's element bound: add solver.element_bound=false"] = {bound}
         penalty = {"trainer.inversion_penalty", "trainer.inversion_margin"}
         if changed & penalty and not penalty & old.keys():
-            default_changed(changed & penalty, "it trained without the inversion penalty: add trainer.inversion_penalty=0")
-        hint = f" ({'; '.join(hints)})" if hints and changed <= explained else ""
+            hints["it trained without the inversion penalty: add trainer.inversion_penalty=0"] = changed & penalty
+        hint = f" ({'; '.join(hints)})" if hints and changed <= set().union(*hints.values()) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "
                           "or set trainer.resume=force to continue anyway")
