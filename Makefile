@@ -49,7 +49,7 @@ tutorial:           ## docs/tutorial.md: the strip's tasks posed in YAML (joint,
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
 	$(PYTHON) experiments/repro.py translation --baseline-steps 80
 
-repro-rotation-single: ## paper rotation, single stick: joint (5x2, refined at 8x2 with contact) vs frozen -> outputs/repro/rotation_single/
+repro-rotation-single: ## paper rotation, single stick: joint (5x2, refined at 8x2 then 11x2 with contact) vs frozen -> outputs/repro/rotation_single/
 	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60
 
 repro-rotation-double: ## paper rotation, double: joint (5x2, refined at 8x2 with contact) vs frozen -> outputs/repro/rotation_double/

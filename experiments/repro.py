@@ -6,9 +6,10 @@
 
 Runs `python -m nma.run experiment=repro_<name>` twice (geometry learned; geometry frozen, the
 paper's control-only baseline) into outputs/repro/<name>/{joint,baseline}/ and writes
-outputs/repro/<name>/comparison.{md,json,png} (and seconds.json, the runs' wall times). Where conf/experiment/repro_<name>_refine.yaml exists,
-the joint design is then fine-tuned at that finer fidelity into outputs/repro/<name>/refined/, and the
-refined design is the one compared.
+outputs/repro/<name>/comparison.{md,json,png} (and seconds.json, the runs' wall times). Where
+conf/experiment/repro_<name>_refine.yaml exists, the joint design is then fine-tuned at that finer fidelity
+into outputs/repro/<name>/refined/, and where repro_<name>_finish.yaml exists too, the refined design once
+more into outputs/repro/<name>/finished/; the last stage's design is the one compared.
 """
 from __future__ import annotations
 
@@ -26,6 +27,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+# stages after the joint run, each fine-tuning the design of the run before it: (config suffix, run directory)
+STAGES = (("refine", "refined"), ("finish", "finished"))
+
+
+def stages(name: str) -> list[tuple[str, str]]:
+    """The experiment's stages after its joint run, in order: those with a conf/experiment file."""
+    return [(suffix, run) for suffix, run in STAGES
+            if (ROOT / "conf" / "experiment" / f"repro_{name}_{suffix}.yaml").exists()]
 
 
 def digital_mnist(out: Path, overrides: list[str]):
@@ -89,26 +98,28 @@ def main():
     out = args.out or ROOT / "outputs" / "repro" / args.name
     if args.name == "digital_mnist":
         return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
-    refine = (ROOT / "conf" / "experiment" / f"repro_{args.name}_refine.yaml").exists()
+    refinements = stages(args.name)
     if not args.summarise:
         seconds = {"joint": train(args.name, out / "joint", args.overrides)["wall_seconds"]}
-        if refine:
-            seconds["refined"] = train(f"{args.name}_refine", out / "refined",
-                                       [f"trainer.init_from={out / 'joint'}", *args.overrides])["wall_seconds"]
+        before = "joint"
+        for suffix, run in refinements:
+            seconds[run] = train(f"{args.name}_{suffix}", out / run,
+                                 [f"trainer.init_from={out / before}", *args.overrides])["wall_seconds"]
+            before = run
         seconds["baseline"] = train(args.name, out / "baseline", ["trainer.freeze_geometry=true",
                                                                   f"trainer.steps={args.baseline_steps}",
                                                                   *args.overrides])["wall_seconds"]
         (out / "seconds.json").write_text(json.dumps(seconds))
-    summarise(out, args.name, refine)
+    summarise(out, args.name, [run for _, run in refinements])
 
 
-def summarise(out: Path, experiment: str, refine: bool):
+def summarise(out: Path, experiment: str, refinements: list[str]):
     """comparison.{json,md,png} from the runs' metrics.json and seconds.json."""
     seconds = json.loads((out / "seconds.json").read_text())
-    runs = ("joint", "refined", "baseline") if refine else ("joint", "baseline")
+    runs = ("joint", *refinements, "baseline")
     m = {r: {**json.loads((out / r / "metrics.json").read_text()), "wall_seconds": seconds[r]} for r in runs}
     coarse, baseline = m["joint"], m["baseline"]
-    joint = m["refined"] if refine else coarse  # the design compared: the refined one where there is one
+    joint = m[refinements[-1]] if refinements else coarse  # the design compared: the last stage's
     total = sum(seconds.values())
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
@@ -126,10 +137,14 @@ def summarise(out: Path, experiment: str, refine: bool):
                "invalid_states": [joint.get("invalid_states"), baseline.get("invalid_states")],
                "runs": {r: str(out / r) for r in runs}}
     rows = [("joint (network + geometry)", coarse)]
-    if refine:
-        summary.update(joint_before_refinement=coarse["value"], refined_steps=joint["step"],
-                       refined_seconds=joint["wall_seconds"], refined_fidelity=joint["fidelity"])
-        rows.append(("joint, refined (fine-tuned at the finer fidelity)", joint))
+    if refinements:
+        summary.update(joint_before_refinement=coarse["value"],
+                       refined_steps=sum(m[r]["step"] for r in refinements),
+                       refined_seconds=sum(m[r]["wall_seconds"] for r in refinements),
+                       refined_fidelity=joint["fidelity"],
+                       stages={r: {"steps": m[r]["step"], "value": m[r]["value"], "fidelity": m[r]["fidelity"],
+                                   "seconds": m[r]["wall_seconds"]} for r in refinements})
+        rows += [(f"joint, {r} (fine-tuned at a finer fidelity)", m[r]) for r in refinements]
     rows.append(("baseline (network only)", baseline))
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
     (out / "comparison.md").write_text(
@@ -141,13 +156,14 @@ def summarise(out: Path, experiment: str, refine: bool):
         f"joint / baseline = {ratio:.3f}; total {total / 60:.1f} min\n")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     evals = lambda r, offset=0: [(h["step"] + offset, h[name]) for h in r["history"] if name in h]
-    for r, ev, label in ((joint, evals(coarse) + (evals(joint, coarse["step"]) if refine else []), "joint"),
-                         (baseline, evals(baseline), "baseline")):
+    joint_evals, offset, before = evals(coarse), coarse["step"], coarse
+    for r in refinements:  # each stage's evaluations after the steps of the stages before it
+        ax[1].axvline(offset, color="grey", lw=0.8, ls="--", label=f"{fid(before)} -> {fid(m[r])} ({r})")
+        joint_evals += evals(m[r], offset)
+        offset, before = offset + m[r]["step"], m[r]
+    for r, ev, label in ((joint, joint_evals, "joint"), (baseline, evals(baseline), "baseline")):
         ax[0].plot(np.sort(r["per_sample"]), label=label)
         ax[1].plot(*zip(*ev), "o-", ms=3, label=label)
-    if refine:
-        ax[1].axvline(coarse["step"], color="grey", lw=0.8, ls="--",
-                      label=f"{fid(coarse)} -> {fid(joint)} (refinement)")
     ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]", title="final error per target")
     ax[1].set(xlabel="step", ylabel=f"{name} [{unit}]", title="evaluation during training")
     ax[1].axhline(joint["no_actuation"], color="grey", ls=":", label="no actuation")

@@ -418,6 +418,21 @@ def test_refinement_stage_changes_only_fidelity_schedule_and_contact(name):
     assert refine == base
 
 
+def test_the_single_rotations_last_stage_changes_only_its_discretisation_and_steps():
+    """repro_rotation_single_finish fine-tunes the design of repro_rotation_single_refine (experiments/repro.py
+    runs it into outputs/repro/rotation_single/finished): the same settings but for a finer mesh at the
+    same two Gauss points, and fewer steps."""
+    refine = OmegaConf.to_container(compose_cfg("experiment=repro_rotation_single_refine"))
+    finish = OmegaConf.to_container(compose_cfg("experiment=repro_rotation_single_finish"))
+    assert (finish["fidelity"]["ctrl_per_patch"], finish["fidelity"]["quad_points"]) == (11, 2)
+    assert finish["trainer"]["steps"] < refine["trainer"]["steps"]
+    for cfg in (refine, finish):
+        cfg["fidelity"].pop("ctrl_per_patch")
+        for key in ("steps", "eval_every", "checkpoint_every"):
+            cfg["trainer"].pop(key)
+    assert finish == refine
+
+
 @pytest.mark.parametrize("override, message", [
     ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
     ("scene.radii_bounds=[0.1,1.5]", "scene.radii_bounds must be a list of numbers, each in (0, 1)"),

@@ -195,7 +195,7 @@ def test_fidelity_scene_is_the_scenes_own_setting_measured_no_worse_than_the_pap
     """fidelity=scene (the default) takes the scene's `fidelity` field where it states one: its
     reproduction's model (fidelity and contact), whose measured gradient error (the shipped front) is no
     larger than the paper's 5 x 5; the rotations state none (their reproductions' 5 x 2 is a first stage,
-    refined at 8 x 2 with contact), so they get the paper's.  Translation's 5 x 2 trains physical states
+    refined at finer fidelities with contact), so they get the paper's.  Translation's 5 x 2 trains physical states
     with the inversion penalty, and so the penalty is on wherever its reproduction has it."""
     from nma.train.runs import fingerprint, validate
     from conftest import compose_cfg
