@@ -32,9 +32,13 @@ STAGES = (("refine", "refined"), ("finish", "finished"))
 
 
 def stages(name: str) -> list[tuple[str, str]]:
-    """The experiment's stages after its joint run, in order: those with a conf/experiment file."""
-    return [(suffix, run) for suffix, run in STAGES
-            if (ROOT / "conf" / "experiment" / f"repro_{name}_{suffix}.yaml").exists()]
+    """The experiment's stages after its joint run, in order: a leading run of STAGES, each with a
+    conf/experiment/repro_<name>_<suffix>.yaml (a stage continues the one before it, so none may be missing)."""
+    found = [(ROOT / "conf" / "experiment" / f"repro_{name}_{suffix}.yaml").exists() for suffix, _ in STAGES]
+    n = found.index(False) if False in found else len(found)
+    if any(found[n:]):
+        raise SystemExit(f"repro_{name}: a stage ({STAGES[found.index(True, n)][0]}) without the stage before it")
+    return list(STAGES[:n])
 
 
 def digital_mnist(out: Path, overrides: list[str]):
@@ -98,11 +102,11 @@ def main():
     out = args.out or ROOT / "outputs" / "repro" / args.name
     if args.name == "digital_mnist":
         return (summarise_digital_mnist if args.summarise else lambda o: digital_mnist(o, args.overrides))(out)
-    refinements = stages(args.name)
+    later = stages(args.name)
     if not args.summarise:
         seconds = {"joint": train(args.name, out / "joint", args.overrides)["wall_seconds"]}
         before = "joint"
-        for suffix, run in refinements:
+        for suffix, run in later:
             seconds[run] = train(f"{args.name}_{suffix}", out / run,
                                  [f"trainer.init_from={out / before}", *args.overrides])["wall_seconds"]
             before = run
@@ -110,13 +114,18 @@ def main():
                                                                   f"trainer.steps={args.baseline_steps}",
                                                                   *args.overrides])["wall_seconds"]
         (out / "seconds.json").write_text(json.dumps(seconds))
-    summarise(out, args.name, [run for _, run in refinements])
+    summarise(out, args.name, [run for _, run in later])
 
 
 def summarise(out: Path, experiment: str, refinements: list[str]):
     """comparison.{json,md,png} from the runs' metrics.json and seconds.json."""
     seconds = json.loads((out / "seconds.json").read_text())
     runs = ("joint", *refinements, "baseline")
+    missing = [r for r in runs if r not in seconds or not (out / r / "metrics.json").exists()]
+    if missing:  # e.g. a directory from before a stage was added: the last stage's design is the one compared
+        raise SystemExit(f"{out}: no finished run (metrics.json and its time in seconds.json) for {missing}; "
+                         f"rerun the experiment, or each missing stage into its directory with "
+                         f"trainer.init_from=<the stage before>")
     m = {r: {**json.loads((out / r / "metrics.json").read_text()), "wall_seconds": seconds[r]} for r in runs}
     coarse, baseline = m["joint"], m["baseline"]
     joint = m[refinements[-1]] if refinements else coarse  # the design compared: the last stage's

@@ -422,6 +422,10 @@ def test_the_single_rotations_last_stage_changes_only_its_discretisation_and_ste
     """repro_rotation_single_finish fine-tunes the design of repro_rotation_single_refine (experiments/repro.py
     runs it into outputs/repro/rotation_single/finished): the same settings but for a finer mesh at the
     same two Gauss points, and fewer steps."""
+    from experiments.repro import stages
+
+    assert stages("rotation_single") == [("refine", "refined"), ("finish", "finished")]
+    assert stages("rotation_double") == [("refine", "refined")] and stages("translation") == []
     refine = OmegaConf.to_container(compose_cfg("experiment=repro_rotation_single_refine"))
     finish = OmegaConf.to_container(compose_cfg("experiment=repro_rotation_single_finish"))
     assert (finish["fidelity"]["ctrl_per_patch"], finish["fidelity"]["quad_points"]) == (11, 2)
