@@ -123,7 +123,7 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
     runs = ("joint", *refinements, "baseline")
     missing = [r for r in runs if r not in seconds or not (out / r / "metrics.json").exists()]
     if missing:  # e.g. a directory from before a stage was added: the last stage's design is the one compared
-        raise SystemExit(f"{out}: no finished run (metrics.json and its time in seconds.json) for {missing}; "
+        raise SystemExit(f"{out}: no complete run (metrics.json, and its time in seconds.json) for {missing}; "
                          f"rerun the experiment, or each missing stage into its directory with "
                          f"trainer.init_from=<the stage before>")
     m = {r: {**json.loads((out / r / "metrics.json").read_text()), "wall_seconds": seconds[r]} for r in runs}
