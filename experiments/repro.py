@@ -34,11 +34,10 @@ STAGES = (("refine", "refined"), ("finish", "finished"))
 def stages(name: str) -> list[tuple[str, str]]:
     """The experiment's stages after its joint run, in order: a leading run of STAGES, each with a
     conf/experiment/repro_<name>_<suffix>.yaml (a stage continues the one before it, so none may be missing)."""
-    found = [(ROOT / "conf" / "experiment" / f"repro_{name}_{suffix}.yaml").exists() for suffix, _ in STAGES]
-    n = found.index(False) if False in found else len(found)
-    if any(found[n:]):
-        raise SystemExit(f"repro_{name}: a stage ({STAGES[found.index(True, n)][0]}) without the stage before it")
-    return list(STAGES[:n])
+    present = [stage for stage in STAGES if (ROOT / "conf" / "experiment" / f"repro_{name}_{stage[0]}.yaml").exists()]
+    if present != list(STAGES[:len(present)]):
+        raise SystemExit(f"repro_{name}: stages {[suffix for suffix, _ in present]} leave out one before them")
+    return present
 
 
 def digital_mnist(out: Path, overrides: list[str]):
