@@ -183,6 +183,11 @@ class PardisoBackend(HostBackend):
     each workspace has its own handle, taken from a pool and given back when released."""
     name = "pardiso"
     upper = True
+    # iparm[7]: 0 refines a solve (two steps) only where the factorisation perturbed a pivot; MKL's default
+    # for this matrix type, 2, refines every solve, which costs two back-substitutions and a product each
+    # time and changed no Newton or adjoint answer beyond round-off: Newton corrects its own steps, and the
+    # adjoint refines against the exact Hessian (Workspace._adjoint)
+    refinement_steps = 0
 
     def __init__(self, disc: Discretisation):
         super().__init__(disc)
@@ -214,7 +219,8 @@ class PardisoBackend(HostBackend):
             if factor is None:
                 factor = _PardisoFactor(self._new_solver())
                 factor.solver.set_phase(11)
-                factor.solver._call_pardiso(A, b)
+                factor.solver._call_pardiso(A, b)  # fills iparm with MKL's defaults
+                factor.solver.iparm[7] = self.refinement_steps
         factor.A = A
         factor.solver.set_phase(22)
         factor.solver._call_pardiso(A, b)
