@@ -26,6 +26,8 @@ class SparsePattern:
     scatter: np.ndarray   # ((E + Ec) * 324,) CSR data slot of each block entry; nnz for dropped entries
     diag: np.ndarray      # (n,) data slot of each diagonal entry
     elements: int         # the Bezier elements' blocks; the contact blocks follow them
+    kept: np.ndarray      # the Bezier elements' entries that land in the pattern (about half with `upper`)...
+    kept_slots: np.ndarray  # ...and their data slots: the sum skips the dropped ones, in the same order
 
     @property
     def nnz(self) -> int:
@@ -34,7 +36,7 @@ class SparsePattern:
     def matrix(self, kel: np.ndarray, shift: float = 0.0) -> sp.csr_matrix:
         kel = kel.reshape(len(kel), -1)
         E, slots = self.elements, self.scatter.reshape(len(kel), -1)
-        data = np.bincount(slots[:E].reshape(-1), weights=kel[:E].reshape(-1), minlength=self.nnz + 1)
+        data = np.bincount(self.kept_slots, weights=kel[:E].reshape(-1)[self.kept], minlength=self.nnz + 1)
         # contact blocks are exactly zero unless their walls are within reach: only the others are added
         near = E + np.flatnonzero(kel[E:].any(axis=1))
         if near.size:
@@ -72,5 +74,7 @@ def sparse_pattern(disc: Discretisation, upper: bool) -> SparsePattern:
     r, c = unique // n, unique % n
     indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
     diag = np.searchsorted(unique, np.arange(n) * n + np.arange(n))
-    return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag,
-                         disc.elem_points.reshape(-1, 9).shape[0])
+    elements = disc.elem_points.reshape(-1, 9).shape[0]
+    kept = np.flatnonzero(scatter[:elements * 18 * 18] < len(unique))
+    return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag, elements, kept,
+                         scatter[kept])
