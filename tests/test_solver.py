@@ -272,9 +272,13 @@ def test_pardiso_refines_a_solve_only_where_its_factorisation_perturbed_a_pivot(
     kel = np.asarray(tangents_at(sim.equations, X, d, mat, np.asarray(u).reshape(-1)[sim.equations.free]))
     rng = np.random.default_rng(0)
     hessian = sim.backend.pattern.matrix(kel)
-    indefinite = sp.random(300, 300, density=0.03, random_state=1, format="lil")
-    indefinite.setdiag(np.tile([0.0, 1.0], 150))
-    indefinite = sp.triu(indefinite + indefinite.T, format="csr")
+    # zero diagonal entries stored explicitly: MKL's symmetric storage keeps every diagonal entry
+    off = sp.triu(sp.random(300, 300, density=0.03, random_state=1, format="coo"), k=1)
+    diag = np.tile([0.0, 1.0], 150)
+    indefinite = sp.csr_matrix((np.concatenate([off.data, diag]), (np.concatenate([off.row, np.arange(300)]),
+                                                                    np.concatenate([off.col, np.arange(300)]))),
+                               shape=(300, 300))
+    indefinite.sort_indices()
     for A, perturbed in ((hessian, False), (indefinite, True)):
         backend = PardisoBackend(disc)  # a fresh handle, analysed for this matrix
         ws = backend.workspace()
@@ -285,7 +289,8 @@ def test_pardiso_refines_a_solve_only_where_its_factorisation_perturbed_a_pivot(
         assert (iparm[13] > 0) == perturbed
         assert iparm[6] == (2 if perturbed else 0)
         full = A + A.T - sp.diags(A.diagonal())
-        assert np.linalg.norm(full @ x - b) <= 1e-10 * np.linalg.norm(b)
+        # with perturbed pivots the refined residual depends on the matrix's conditioning (1e-13 here)
+        assert np.linalg.norm(full @ x - b) <= (1e-8 if perturbed else 1e-11) * np.linalg.norm(b)
 
 
 def test_nearly_incompressible_failure_says_why():

@@ -184,8 +184,8 @@ class PardisoBackend(HostBackend):
     name = "pardiso"
     upper = True
     # iparm[7]: 0 refines a solve (two steps) only where the factorisation perturbed a pivot; MKL's default
-    # for this matrix type, 2, refines every solve, which costs two back-substitutions and a product each
-    # time and changed no Newton or adjoint answer beyond round-off: Newton corrects its own steps, and the
+    # for this matrix type, 2, refines every solve, which costs two more back-substitutions and two matrix
+    # products each time and changed no Newton or adjoint answer beyond round-off: Newton corrects its own steps, and the
     # adjoint refines against the exact Hessian (Workspace._adjoint)
     refinement_steps = 0
 
