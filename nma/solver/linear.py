@@ -184,9 +184,9 @@ class PardisoBackend(HostBackend):
     name = "pardiso"
     upper = True
     # iparm[7]: 0 refines a solve (two steps) only where the factorisation perturbed a pivot; MKL's default
-    # for this matrix type, 2, refines every solve, which costs two more back-substitutions and two matrix
-    # products each time and changed no Newton or adjoint answer beyond round-off: Newton corrects its own steps, and the
-    # adjoint refines against the exact Hessian (Workspace._adjoint)
+    # for this matrix type, 2, refines every solve: two more back-substitutions and two matrix products each
+    # time, which changed no Newton or adjoint answer beyond round-off (Newton corrects its own steps, and
+    # the adjoint refines against the exact Hessian: Workspace._adjoint)
     refinement_steps = 0
 
     def __init__(self, disc: Discretisation):
