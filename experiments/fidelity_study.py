@@ -290,17 +290,17 @@ def convergence_report(result: dict, out: Path) -> str:
              f"compared with.  Each cell: against the {ref} reference / against q*.", "",
              "| quantity | differences between levels | orders | finest level's error (Richardson) | "
              + " | ".join(result["dofs"]) + " |", "|---|---|---|---|" + "---|" * len(result["dofs"])]
-    for name, v in result["quantities"].items():
-        lines.append(f"| {name} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
+    for quantity, v in result["quantities"].items():
+        lines.append(f"| {quantity} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
                      f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error'])} | "
                      + " | ".join(f"{fmt(e['vs_reference'])} / {fmt(e['vs_limit'])}" for e in v["error"].values())
                      + " |")
     lines += ["", "Gradient cosines (worst over the draws), against the reference / against q*:", "",
               "| quantity | " + " | ".join(result["dofs"]) + " |", "|---|" + "---|" * len(result["dofs"])]
     cos = lambda v: "-" if v is None else f"{v:.4f}"
-    lines += [f"| {name} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
-                                        for e in v["error"].values()) + " |"
-              for name, v in result["quantities"].items() if name != "observable"]
+    lines += [f"| {quantity} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
+                                            for e in v["error"].values()) + " |"
+              for quantity, v in result["quantities"].items() if quantity != "observable"]
     lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
     lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
     text = "\n".join(lines) + "\n"
