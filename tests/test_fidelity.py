@@ -250,7 +250,7 @@ def test_random_design_stays_in_its_box_with_convex_cells():
 
 
 @pytest.mark.parametrize("orders", [(2.0,), (1.0, 0.5)])
-def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_sequence(orders):
+def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_sequence(orders, tmp_path):
     """q(h) = q* + C sum_i h^p_i with known q*, C, p_i (h = 1 / knot spans, spans = control points - 2).
     One power law: the reference check must find its order from both triples of the ladder 8 -> 11 -> 14
     -> 17, and Richardson's limit q* and the finest level's error.  Two (h + sqrt h, as a solution with
@@ -281,3 +281,12 @@ def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_se
             assert three["orders"] == pytest.approx([orders[0]], rel=1e-6)
         else:
             assert orders[1] < found["orders"][1] < found["orders"][0] < orders[0]
+    # the report's files are named for the scene's variant, whatever quantities it lists
+    for v in summary["quantities"].values():
+        v["error"] = {"14x5": {"vs_reference": 0.0, "vs_limit": 0.1, "cosine_vs_reference": 1.0,
+                               "cosine_vs_limit": 0.99}}
+    result = {"scene": "translation", "grading": 2.5, "unpinned": True, "draws": 2, "quad_points": 5,
+              "dofs": {"14x5": 34088}, "forward_grad_seconds": {"14x5": {"median": 1.0}}, **summary}
+    assert "| gradient radii |" in study.convergence_report(result, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["translation_unpinned_graded2.5.convergence.json",
+                                                          "translation_unpinned_graded2.5.convergence.md"]
