@@ -177,7 +177,7 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
     each frame titled with its descriptor and error (samples whose solve failed are left out)."""
     import logging
 
-    from matplotlib.animation import FuncAnimation, PillowWriter
+    from matplotlib.animation import PillowWriter
 
     logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)  # no "Animation.save using" line
 
@@ -204,7 +204,12 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
         fig.suptitle(f"{task.name}, learned design; error in {task.metric_unit}", fontsize=8)
 
-    FuncAnimation(fig, draw, frames=frames).save(path, writer=PillowWriter(fps=fps), dpi=100)
+    # the writer's own loop: FuncAnimation would draw each frame twice (on screen, then into the file)
+    writer = PillowWriter(fps=fps)
+    with writer.saving(fig, path, dpi=100):
+        for i in frames:
+            draw(i)
+            writer.grab_frame()
     plt.close(fig)
     return path
 
