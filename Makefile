@@ -3,7 +3,7 @@ PYTHON ?= python3
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -31,6 +31,9 @@ study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=aut
 
 study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.* (STUDY_ARGS="--unpinned --grading 2")
 	$(PYTHON) experiments/fidelity_study.py --convergence $(STUDY_ARGS)
+
+study-wellposed:    ## the well-posed variants (no pins), knots graded 3, refinement 14 -> 26 x 5 -> outputs/studies/fidelity/*_unpinned_graded3.convergence.* (about 2 h)
+	$(PYTHON) experiments/fidelity_study.py --convergence --unpinned --grading 3 --ladder 14 17 20 23 26 $(STUDY_ARGS)
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py
