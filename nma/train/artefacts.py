@@ -175,11 +175,7 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
 def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) -> Path | None:
     """figures/sweep.gif: the material as the descriptor runs along task.sweep, on one fixed scale,
     each frame titled with its descriptor and error (samples whose solve failed are left out)."""
-    import logging
-
     from matplotlib.animation import PillowWriter
-
-    logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)  # no "Animation.save using" line
 
     X, u, out, ts, ok = sweep.X, sweep.u, sweep.out, sweep.ts, sweep.ok
     frames = [i for i in range(len(ts)) if ok[i]]
