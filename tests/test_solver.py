@@ -50,6 +50,33 @@ def test_failure_reports_how_far_it_got():
     assert str(sim.failure(eq, d, mat)) == str(err.value) and float(eq.info.load) == load
 
 
+def test_a_failed_solve_returns_the_last_equilibrium_it_reached(simulator):
+    """A solve that stops short returns the state it last converged to, at info.load: its prescribed
+    points at that fraction of the actuation, the equilibrium a solve to that load finds, and with the
+    element bound a physical object.  (It returned the iterate it stopped at, with the prescribed points
+    at the full actuation: torn apart at the actuated boundary, det F down to -27 there.)"""
+    from conftest import barrier_case
+    from nma.geometry.validity import StateChecker
+
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=8, initial_increment=0.25, grow=1.0))
+    d, mat = jnp.array([2.0, 2.0]), material(0.07, 0.3)
+    eq = sim.solve(sim.init_params(), d, mat, throw=False)
+    load = float(eq.info.load)
+    assert not eq.converged and 0.25 <= load < 1.0
+    left = disc.group_points["left"]
+    np.testing.assert_allclose(eq.u[left], np.tile([load * 2.0, 0.0], (len(left), 1)))
+    reached = Simulator(disc, "pardiso").solve(sim.init_params(), load * d, mat)
+    np.testing.assert_allclose(eq.u, reached.u, rtol=0, atol=1e-6 * float(np.abs(reached.u).max()))
+
+    radii, d = barrier_case()  # stops where the material would invert between Gauss points
+    bounded = simulator("translation", ctrl_per_patch=5, quad_points=2)
+    params = {"radii": jnp.asarray(radii)}
+    eq = bounded.solve(params, jnp.asarray(d), mat, throw=False)
+    assert not eq.converged and 0.0 < float(eq.info.load) < 1.0
+    assert StateChecker(bounded.disc, np.asarray(bounded.reference_points(params))).check(eq.u).valid
+
+
 def test_status_is_returned_under_jit_without_nan():
     disc = discretise(scene_from_config(SMALL))
     sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=2))

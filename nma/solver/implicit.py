@@ -490,7 +490,10 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
-        return Equilibrium(eqs.full(u_free, eqs.A @ d), info)
+        # a failed solve's state is at the load it reached (a failed solve is a cold one: its load path
+        # scales the prescribed displacements from zero)
+        reached = jnp.where(info.status == CONVERGED, 1.0, info.load)
+        return Equilibrium(eqs.full(u_free, eqs.A @ (reached * d)), info)
 
     return equilibrium, warm
 

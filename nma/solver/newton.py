@@ -83,7 +83,7 @@ class Equilibrium(NamedTuple):
     status, statistics and residual history).  A pytree, so traced, batched (vmap: every field gains
     the batch axis) and differentiated solves return it too; `u, info = equilibrium` unpacks it.  The
     host-side properties read a solved one; a failed solve's error says how far it got and why."""
-    u: jnp.ndarray     # (n_points, 2)
+    u: jnp.ndarray     # (n_points, 2); of a failed solve, its last converged state (at load info.load)
     info: NewtonInfo
 
     @property
@@ -542,7 +542,9 @@ def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearise
 
 
 def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
-    return s.u, NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
+    # a solve that did not converge returns the last state it did converge to (at info.load), not the
+    # iterate it stopped at: an equilibrium, if not the one asked for
+    return jnp.where(s.status == CONVERGED, s.u, s.u_conv), NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
 
 
 def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
