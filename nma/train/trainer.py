@@ -44,7 +44,7 @@ class Evaluation:
     """One evaluation at the current parameters: what metrics.json records of it, and the solved states
     that the figures and the HDF5 fields draw."""
     record: dict       # step, the task's metric by its name and its extra metrics, failed_solves and
-                       # failed_samples (indices; their per_sample values are of the unconverged state), the
+                       # failed_samples (indices; their per_sample values are of the last equilibrium reached), the
                        # validity summary and invalid_samples, per_sample, eval_actuations (JSON)
     X: Any             # (n_points, 2) reference control points
     d: Any             # (n, n_actuations) actuations
