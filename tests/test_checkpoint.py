@@ -74,7 +74,7 @@ def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translatio
 
 def test_a_run_trained_at_the_papers_default_is_told_to_add_fidelity_paper():
     """A shape-matching run from before fidelity=scene trained at 5 x 5; resumed with today's default
-    (the scene's 5 x 3) it stops naming the field and the override that resumes it."""
+    (the scene's 5 x 3 then) it stops naming the field and the override that resumes it."""
     import json
 
     from nma.train.checkpoint import check_fingerprint

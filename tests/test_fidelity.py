@@ -225,7 +225,7 @@ def test_fidelity_scene_leaves_what_the_command_sets_and_checks_the_scenes_field
     from conftest import compose_cfg
 
     half = validate(compose_cfg("task=shape_matching", "fidelity.ctrl_per_patch=8", "logger=none")).fidelity
-    assert (half.ctrl_per_patch, half.quad_points) == (8, 3)  # the scene's quad_points, the command's control points
+    assert (half.ctrl_per_patch, half.quad_points) == (8, 2)  # the scene's quad_points, the command's control points
     with pytest.raises(ConfigError, match=re.escape("scene.fidelity.quad_points must be an integer in [2, 10], got 1")):
         validate(compose_cfg("task=shape_matching", "scene.fidelity={quad_points:1}", "logger=none"))
     from nma.schema import scene_config
