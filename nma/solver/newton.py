@@ -544,7 +544,8 @@ def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearise
 def result(s: _State) -> tuple[jnp.ndarray, NewtonInfo]:
     # a solve that did not converge returns the last state it did converge to (at info.load), not the
     # iterate it stopped at: an equilibrium, if not the one asked for
-    return jnp.where(s.status == CONVERGED, s.u, s.u_conv), NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
+    u = jnp.where(s.status == CONVERGED, s.u, s.u_conv)
+    return u, NewtonInfo(s.status, s.it, s.steps, s.cuts, s.lam_conv, s.rnorm, s.tol, s.history)
 
 
 def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
