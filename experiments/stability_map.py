@@ -5,6 +5,7 @@
     python experiments/stability_map.py --contact --out outputs/studies/stability_contact
     python experiments/stability_map.py --formulation mixed --nus 0.499 --out outputs/studies/stability_mixed
     python experiments/stability_map.py --corrector trust_region --nus 0.499 --out outputs/studies/stability_trust
+    python experiments/stability_map.py --formulation mixed --inversion-barrier 0.5 --nus 0.499 --out outputs/studies/stability_mixed_barrier
 
 Per scene, every combination of
   material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
@@ -78,7 +79,7 @@ def designs(sim, rng) -> dict[str, dict]:
 
 def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
               formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None,
-              corrector: str = "line_search", element_bound: bool = True) -> dict:
+              corrector: str = "line_search", element_bound: bool = True, inversion_barrier: float = 0.0) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -92,7 +93,8 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     solver = {"escape_saddles": escape_saddles, "corrector": corrector, "element_bound": element_bound}
     if max_iters is not None:  # else the solver's default budget
         solver["max_iters"] = max_iters
-    sim = Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"), solver,
+    fidelity = {**config.load("fidelity", "paper"), "inversion_barrier": inversion_barrier}
+    sim = Simulator.from_config(config.load("scene", scene), fidelity, solver,
                                 {"enabled": contact}, formulation)
     d_max = config.load("task", scene)["d_max"]
     solve = jax.jit(lambda X, d, mat: sim.equilibrium(X, d, mat))
@@ -140,7 +142,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
             "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
             + (f", {corrector}" if corrector != "line_search" else "") + ("" if element_bound else ", no element bound"),
             "max_iters": sim.options.max_iters,
-            "contact": contact, "formulation": formulation,
+            "contact": contact, "formulation": formulation, "inversion_barrier": inversion_barrier,
             "records": records}
 
 
@@ -185,7 +187,8 @@ def summarise(result: dict, out: Path) -> None:
     s = result["summary"]
     lines = [f"# Stability map: {result['scene']} ({result['dofs']} dofs, d_max {result['d_max']}, E {result['E']}, "
              f"paper fidelity, {result['solver']}{', contact' if result.get('contact') else ''}"
-             f"{', formulation ' + result['formulation'] if result.get('formulation', 'displacement') != 'displacement' else ''})",
+             f"{', formulation ' + result['formulation'] if result.get('formulation', 'displacement') != 'displacement' else ''}"
+             f"{', inversion barrier at det F ' + str(result['inversion_barrier']) if result.get('inversion_barrier') else ''})",
              "",
              f"{s['converged']} of {s['solves']} solves converged; {s['nonfinite']} returned non-finite values; "
              + (f"{s['stopped_inverting']} stopped where the material would invert between Gauss points "
@@ -247,6 +250,9 @@ def main():
     ap.add_argument("--no-element-bound", dest="element_bound", action="store_false",
                     help="solver.element_bound=false: Newton steps on where the material inverts between Gauss "
                          "points (the maps before the bound was the default; write to a separate --out)")
+    ap.add_argument("--inversion-barrier", type=float, default=0.0, metavar="J_HAT",
+                    help="fidelity.inversion_barrier: a barrier on det F below J_HAT at every element's check "
+                         "points (0: none, the default; write to a separate --out)")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -260,7 +266,7 @@ def main():
     for scene in args.scenes:
         result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
                            nus=args.nus, max_iters=args.max_iters, corrector=args.corrector,
-                           element_bound=args.element_bound)
+                           element_bound=args.element_bound, inversion_barrier=args.inversion_barrier)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['stopped_inverting']} stopped where the material "
