@@ -4,6 +4,8 @@
     python experiments/bench_train.py --scenes translation --steps 6
     python experiments/bench_train.py --init-from translation=outputs/repro/translation/learned
 
+digital_mnist times its reproduction's lookup phase (repro_mnist_lookup: the ten digits every step).
+
 Each scene runs in two fresh processes sharing an empty compilation cache: the first pays the
 compilation (its first step is `first_step_seconds`), the second finds the kernels in JAX's persistent
 cache (`second_process_first_step_seconds`).  The second then times `--steps` further steps three
@@ -28,7 +30,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 EXPERIMENTS = {"translation": "repro_translation", "rotation_double": "repro_rotation_double",
-               "shape_matching": "repro_shape_matching"}
+               "shape_matching": "repro_shape_matching", "digital_mnist": "repro_mnist_lookup"}
 
 
 def stats(xs):
