@@ -96,6 +96,8 @@ def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeyp
     assert float(left_out) > np.log(dm.EXCLUDED_WEIGHT)  # one patch cannot be enough: read them all
     assert float(jnp.max(jnp.abs(one_patch - every(x, colours)))) > 1e-6
     np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
+    for a, b in zip(grad(t.display.scores)(x, colours), grad(every)(x, colours)):  # the gradient of what it read
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(b))))
 
 
 def test_loss_and_metrics_follow_the_table(task):
