@@ -132,7 +132,7 @@ class ColourDisplay:
         each sample's nearest patches where what the others could weigh is below EXCLUDED_WEIGHT, else
         over every candidate point (under vmap both are computed; nma.train maps over samples instead).
         Its gradient is the gradient of the branch read, computed in that branch only: reverse-mode
-        through lax.cond carries both branches' residuals, and every candidate point's cost 5x the
+        through lax.cond carries both branches' residuals, and every candidate point's cost 6x the
         nearest read's gradient (a digital MNIST lookup step spent 1.0 of its 2.3 s there)."""
         def nearest(points, colour_nets):
             return self.scores_nearest(points, self.positions(points), self.colours(colour_nets))
