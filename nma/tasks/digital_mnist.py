@@ -141,9 +141,10 @@ class ColourDisplay:
             return self.scores_of(self.positions(points), self.colours(colour_nets))
 
         def read(points, colour_nets):
-            scores, left_out = nearest(points, colour_nets)
+            pos, col = self.positions(points), self.colours(colour_nets)  # shared by both branches
+            scores, left_out = self.scores_nearest(points, pos, col)
             near = left_out <= np.log(EXCLUDED_WEIGHT)
-            return jax.lax.cond(near, lambda: scores, lambda: every(points, colour_nets)), near
+            return jax.lax.cond(near, lambda: scores, lambda: self.scores_of(pos, col)), near
 
         @jax.custom_vjp
         def scores(points, colour_nets):
