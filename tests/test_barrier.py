@@ -44,7 +44,7 @@ def test_the_barrier_changes_nothing_while_det_f_stays_above_j_hat(scene):
     u, *_ = pulled(on, X, 0.6)
     assert check_J(on, quad, u) > J_HAT
     mat = material(0.07, 0.3)
-    for a, b in zip(energy_force_tangents(on, quad, u, mat), energy_force_tangents(off, quad, u, mat)):
+    for a, b in zip(*(jax.tree_util.tree_leaves(energy_force_tangents(d, quad, u, mat)) for d in (on, off))):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
@@ -60,7 +60,7 @@ def test_barrier_force_and_tangent_are_the_energy_derivatives(scene):
     np.testing.assert_allclose(force, jax.grad(lambda v: strain_energy(on, quad, v, mat))(u), rtol=1e-10, atol=1e-14)
     v = jax.random.normal(jax.random.PRNGKey(2), X.shape)
     ed = element_dofs(on)
-    Kv = jnp.zeros(X.size).at[ed].add(jnp.einsum("eab,eb->ea", kel, v.reshape(-1)[ed]))
+    Kv = jnp.zeros(X.size).at[ed].add(jnp.einsum("eab,eb->ea", kel.elements, v.reshape(-1)[ed]))
     jvp = jax.jvp(lambda w: energy_force_tangents(on, quad, w, mat)[1], (u,), (v,))[1]
     np.testing.assert_allclose(Kv, jvp.reshape(-1), rtol=1e-9, atol=1e-12)
 

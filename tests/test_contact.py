@@ -127,10 +127,14 @@ def test_force_and_tangent_against_central_differences(cell, touching):
     quad = quadrature(disc, X)
     model, walls, mu = disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
     energy = lambda x: contact.energy(model, walls, x, mu)  # noqa: E731
-    e, force, blocks = contact.force_and_blocks(model, walls, X + u, mu)
+    e, force, blocks, which, near = contact.force_and_blocks(model, walls, X + u, mu)
     assert float(e) > 0 and float(e) == pytest.approx(float(energy(X + u)), rel=1e-12)
+    # the near blocks fill the first slots, in order; the rest are empty (-1, zero)
+    which, near = np.asarray(which), int(near)
+    assert 0 < near < model.n_blocks and np.all(np.diff(which[:near]) > 0) and np.all(which[near:] == -1)
+    assert not np.asarray(blocks)[near:].any()
     rng = np.random.default_rng(1)
-    pts = disc.block_points[len(disc.elem_points.reshape(-1, 9)):]
+    pts = disc.block_points[len(disc.elem_points.reshape(-1, 9)):][which[:near]]
     dofs = (2 * pts[:, :, None] + np.arange(2)).reshape(len(pts), 18)
     for _ in range(3):
         v = jnp.asarray(rng.standard_normal(X.shape))
@@ -139,22 +143,53 @@ def test_force_and_tangent_against_central_differences(cell, touching):
         assert float(jnp.sum(force * v)) == pytest.approx(float(fd), rel=1e-6)
         # K v from the blocks against the force's central difference
         Kv = np.zeros(2 * disc.n_points)
-        np.add.at(Kv, dofs, np.einsum("eab,eb->ea", np.asarray(blocks), np.asarray(v).reshape(-1)[dofs]))
+        np.add.at(Kv, dofs, np.einsum("eab,eb->ea", np.asarray(blocks)[:near], np.asarray(v).reshape(-1)[dofs]))
         f = lambda x: contact.force_and_blocks(model, walls, x, mu)[1]  # noqa: E731
         fd_K = (f(X + u + h * v) - f(X + u - h * v)).reshape(-1) / (2 * h)
         np.testing.assert_allclose(Kv, fd_K, rtol=1e-5, atol=1e-7 * np.abs(fd_K).max())
-    # the assembled tangent is the elastic blocks followed by these
+    # the tangents: the elastic blocks (bit for bit those of the same scene without contact), then these
     _, _, kel = energy_force_tangents(disc, quad, u, MAT)
-    np.testing.assert_allclose(kel[-model.n_blocks:], blocks)
-    plain = cell[0][False].disc  # the same scene without contact: the same element blocks, bit for bit
-    np.testing.assert_array_equal(kel[:-model.n_blocks], energy_force_tangents(plain, quadrature(plain, X), u, MAT)[2])
-    # the sparse assembly adds only the contact blocks within reach (the others are exactly zero): the
-    # same matrix as every block assembled densely
-    touching_blocks = np.count_nonzero(np.any(np.asarray(blocks) != 0, axis=(1, 2)))
-    assert 0 < touching_blocks < model.n_blocks
-    K = sparse_pattern(disc, upper=False).matrix(np.asarray(kel)).toarray()
+    np.testing.assert_array_equal(kel.contact, blocks)
+    np.testing.assert_array_equal(kel.which, which)
+    plain = cell[0][False].disc
+    np.testing.assert_array_equal(kel.elements, energy_force_tangents(plain, quadrature(plain, X), u, MAT)[2].elements)
+    # the sparse assembly (the near blocks) and the dense one: the same matrix
+    K = sparse_pattern(disc, upper=False).matrix(kel).toarray()
     dense = np.asarray(DenseBackend(disc)._matrix(kel, 0.0))
     np.testing.assert_allclose(K, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
+
+
+def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeypatch):
+    """Tangents with room for fewer contact blocks than are near are incomplete: the assembly refuses
+    them; with room for all of them, the same blocks as with a slot for every block.  Newton that starts
+    with too few slots asks again with more and ends on the same state (to round-off: each room is a
+    program of its own)."""
+    from nma.solver import implicit
+
+    sim, params, X, u = touching
+    disc, model = sim.disc, sim.disc.contact
+    quad = quadrature(disc, X)
+    _, _, full = energy_force_tangents(disc, quad, u, MAT)
+    near = int(full.near)
+    _, _, few = energy_force_tangents(disc, quad, u, MAT, capacity=near - 1)
+    assert not bool(few.complete) and few.which.shape == (near - 1,)
+    with pytest.raises(RuntimeError, match=f"room for {near - 1} contact blocks, but {near} are near"):
+        sparse_pattern(disc, upper=False).matrix(few)
+    _, _, room = energy_force_tangents(disc, quad, u, MAT, capacity=near)
+    assert bool(room.complete)
+    np.testing.assert_array_equal(room.contact, np.asarray(full.contact)[:near])
+    np.testing.assert_array_equal(room.which, np.asarray(full.which)[:near])
+    d = jnp.array([CLOSED])
+    solved = {}
+    for slots in (2, None):  # far fewer than touch; every block
+        monkeypatch.setattr(implicit, "CONTACT_SLOTS", slots or model.n_blocks)
+        newton = implicit.HostNewton(sim.equations, sim.backend, sim.options, workers=1)
+        u, info, _ = newton.forward_batch(X[None], d[None], MAT[None], keep=False)
+        assert int(info.status[0]) == implicit.CONVERGED
+        solved[slots] = u[0], set(newton._kernels)
+    rooms = solved[2][1]  # the rooms it took: 2, then 4x as much until they hold the near blocks
+    assert 2 in rooms and max(rooms) >= near and rooms <= {min(2 * 4 ** k, model.n_blocks) for k in range(8)}
+    np.testing.assert_allclose(solved[2][0], solved[None][0], rtol=0, atol=1e-13 * np.abs(solved[None][0]).max())
 
 
 def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_the_exact_tangent_does(cell, touching):
@@ -165,8 +200,9 @@ def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_t
     sim, params, X, u = touching
     quad = quadrature(sim.disc, X)
     model, walls, mu = sim.disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
-    e, force, exact = contact.force_and_blocks(model, walls, X + u, mu)
-    e_n, force_n, normal = contact.force_and_blocks(model, walls, X + u, mu, normal=jnp.asarray(True))
+    e, force, exact, which, _ = contact.force_and_blocks(model, walls, X + u, mu)
+    e_n, force_n, normal, which_n, _ = contact.force_and_blocks(model, walls, X + u, mu, normal=jnp.asarray(True))
+    np.testing.assert_array_equal(which_n, which)
     assert float(e_n) == float(e)
     np.testing.assert_array_equal(force_n, force)
     lowest = lambda blocks: np.linalg.eigvalsh(np.asarray(blocks)).min(axis=1)  # noqa: E731
@@ -239,5 +275,5 @@ def test_short_segments_of_one_wall_do_not_touch_at_rest():
     quad = quadrature(disc, X)
     assert model.pores == 24 and float(jnp.max(quad.walls.weights)) < model.d_hat  # vertices closer than d_hat
     assert contact.smallest_gap(model, X, X) > model.d_hat
-    e, force, _ = contact.force_and_blocks(model, quad.walls, X, 0.02)
+    e, force, *_ = contact.force_and_blocks(model, quad.walls, X, 0.02)
     assert float(e) == 0.0 and float(jnp.abs(force).max()) == 0.0

@@ -230,12 +230,25 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
     return jnp.sum(energy), unsplit(fe), unsplit(Ke)
 
 
+class Tangents(NamedTuple):
+    """The Hessian of the energy as 18 x 18 blocks, dofs ordered (a, i) -> 2 a + i over each block's
+    points (Discretisation.block_points: the Bezier elements', then the contact blocks').  Only the
+    contact blocks whose walls are within reach are kept, in the first of a fixed number of slots."""
+    elements: jnp.ndarray  # (E, 18, 18) every Bezier element's
+    contact: jnp.ndarray   # (C, 18, 18) the contact blocks whose walls are near; zero past them
+    which: jnp.ndarray     # (C,) the contact block in each slot (its index among disc.contact's pairs), -1: none
+    near: jnp.ndarray      # () how many contact blocks are near: more than C, some are missing (ask again)
+
+    @property
+    def complete(self):
+        return self.near <= self.which.shape[-1]
+
+
 def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray,
-                          contact_normal=False):
-    """Strain energy, internal force (n_points, 2) and element tangents (P*S2, 18, 18) in one pass,
-    followed by the contact blocks (Ec, 18, 18) where the scene has contact (disc.block_points lists the
-    points of each; `contact_normal`: their normal stiffness only, nma.mechanics.contact.force_and_blocks);
-    tangent dofs are ordered (a, i) -> 2a + i. The state must have J > 0 everywhere."""
+                          contact_normal=False, capacity: int | None = None):
+    """Strain energy, internal force (n_points, 2) and the Tangents, in one pass; with contact (disc.contact)
+    its near blocks in `capacity` slots (all blocks where None: never incomplete), `contact_normal` their
+    normal stiffness only (nma.mechanics.contact.force_and_blocks).  The state must have J > 0 everywhere."""
     mu, kappa = lame(mat)
     mixed = disc.formulation == "mixed"
     # the volumetric term at the Gauss points, or per element below
@@ -249,10 +262,12 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
     Ke = Ke.reshape(-1, 18, 18)
     if disc.contact:
-        ec, fc, Ke = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu, before=Ke,
-                                              normal=contact_normal)
+        ec, fc, Kc, which, near = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu, capacity,
+                                                           normal=contact_normal)
         energy, force = energy + ec, force + fc
-    return energy, force, Ke
+    else:
+        Kc, which, near = jnp.zeros((0, 18, 18), Ke.dtype), jnp.zeros(0, int), jnp.asarray(0)
+    return energy, force, Tangents(Ke, Kc, which, near)
 
 
 def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):

@@ -33,14 +33,18 @@ class SparsePattern:
     def nnz(self) -> int:
         return len(self.indices)
 
-    def matrix(self, kel: np.ndarray, shift: float = 0.0) -> sp.csr_matrix:
-        kel = kel.reshape(len(kel), -1)
-        E, slots = self.elements, self.scatter.reshape(len(kel), -1)
-        data = np.bincount(self.kept_slots, weights=kel[:E].reshape(-1)[self.kept], minlength=self.nnz + 1)
-        # contact blocks are exactly zero unless their walls are within reach: only the others are added
-        near = E + np.flatnonzero(kel[E:].any(axis=1))
-        if near.size:
-            data += np.bincount(slots[near].reshape(-1), weights=kel[near].reshape(-1), minlength=self.nnz + 1)
+    def matrix(self, kel, shift: float = 0.0) -> sp.csr_matrix:
+        """K_ff (+ shift I) from Tangents (nma.mechanics.energy), its arrays on the host or not."""
+        Ke, Kc, which = (np.asarray(a) for a in kel[:3])
+        if int(kel.near) > len(which):
+            raise RuntimeError(f"these tangents have room for {len(which)} contact blocks, but {int(kel.near)} "
+                               f"are near: linearise again with more contact slots")
+        data = np.bincount(self.kept_slots, weights=Ke.reshape(-1)[self.kept], minlength=self.nnz + 1)
+        # the contact blocks whose walls are within reach (the others are zero, and not there)
+        live = which >= 0
+        if live.any():
+            slots = self.scatter.reshape(-1, 18 * 18)[self.elements + which[live]]
+            data += np.bincount(slots.reshape(-1), weights=Kc[live].reshape(-1), minlength=self.nnz + 1)
         data = data[:self.nnz]
         if shift:
             data[self.diag] += shift

@@ -36,11 +36,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..mechanics.energy import force_and_tangents, quadrature
+from ..mechanics.energy import energy_force_tangents, quadrature
 from .newton import (CONVERGED, ITERATION_LIMIT, RUNNING, Equations, Equilibrium, advance, hold, leave_saddle,
                      linearise, newton_solve, result, setup)
 from .options import NewtonOptions
 
+CONTACT_SLOTS = 512  # contact blocks a solve's linearisations have room for at first (a rotation at 11 x 2 at its
+                     # largest angle: 169 near of 28,512); more near: 4x as many (kernels compiled once per room)
 KEPT_WORKSPACES = 256  # factors awaiting an adjoint; beyond this the oldest go (their adjoint refactorises)
 MAX_SADDLE_CHECKS = 16  # converged load steps checked for stability per solve (escape_saddles)
 SHIFT_BISECTIONS = 6  # bisections (in log shift) bracketing a saddle's lowest eigenvalue to a factor 10^(1/64)
@@ -183,6 +185,20 @@ class AtRest:
             self._backend.release(self._ws)
 
 
+class Kernels:
+    """The jitted halves of Newton's iterations and the adjoint's tangent, for Equations with a given
+    number of contact slots: one dispatch and one wait per iteration, each kernel ending with the next
+    linearisation."""
+
+    def __init__(self, eqs: Equations, opts: NewtonOptions):
+        self.start = jax.jit(partial(_start, eqs, opts))
+        self.start_warm = jax.jit(partial(_start_warm, eqs, opts))
+        self.start_at_rest = jax.jit(partial(_start_at_rest, eqs, opts))
+        self.step = jax.jit(partial(_step, eqs, opts))
+        self.leave = jax.jit(partial(leave_saddle, eqs, opts))
+        self.tangents = jax.jit(partial(tangents_at, eqs))
+
+
 def available_cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -191,9 +207,9 @@ def available_cores() -> int:
 
 
 def tangents_at(eqs: Equations, X, d, mat, u_free):
-    """Element tangents at a converged state (the adjoint's matrix)."""
-    _, kel = force_and_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat)
-    return kel
+    """The Tangents at a converged state (the adjoint's matrix)."""
+    return energy_force_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat,
+                                 capacity=eqs.contact_slots)[2]
 
 
 def energy_at(eqs: Equations, X, d, mat, u_free):
@@ -215,22 +231,34 @@ class HostNewton:
     def __init__(self, eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
         self.eqs, self.backend, self.opts = eqs, backend, opts
         self.workers = workers or available_cores()
-        # one dispatch and one wait per iteration: each kernel ends with the next linearisation
-        self._start = jax.jit(partial(_start, eqs, opts))
-        self._start_warm = jax.jit(partial(_start_warm, eqs, opts))
-        self._start_at_rest = jax.jit(partial(_start_at_rest, eqs, opts))
+        self._kernels: dict[int | None, Kernels] = {}  # for each room for contact blocks (None: no contact)
         self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
         self._A = np.asarray(eqs.A)
-        self._step = jax.jit(partial(_step, eqs, opts))
         self._hold = jax.jit(partial(hold, opts))
-        self._leave = jax.jit(partial(leave_saddle, eqs, opts))
-        self._tangents = jax.jit(partial(tangents_at, eqs))
         self._energy = jax.jit(partial(energy_at, eqs))
         self._pullback = jax.jit(partial(pullback, eqs))
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-newton") if self.workers > 1 else None
         self._kept: OrderedDict[int, object] = OrderedDict()
         self._tokens = itertools.count(1)
         self._lock = threading.Lock()
+
+    def _linearised(self, call, slots: int | None = None, tangents=lambda out: out[-1].kel):
+        """call(Kernels) with room for `slots` contact blocks, again with 4x as much until its `tangents`
+        hold every near one (the energy and force are exact either way; only the tangent needs the
+        room).  Each solve starts with CONTACT_SLOTS and its linearisations carry their room, so that
+        what a solve computes depends on its input only, not on the solves before it."""
+        slots = slots or CONTACT_SLOTS
+        while True:
+            room = min(slots, self.eqs.disc.contact.n_blocks) if self.eqs.disc.contact else None
+            with self._lock:
+                kernels = self._kernels.get(room) or self._kernels.setdefault(
+                    room, Kernels(self.eqs.with_contact_slots(room), self.opts))
+            out = call(kernels)
+            near = int(tangents(out).near)
+            if room is None or near <= room:
+                return out
+            while slots < near:
+                slots *= 4
 
     def _map(self, fn, items):
         return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
@@ -277,11 +305,11 @@ class HostNewton:
         checked = set()  # converged load steps whose stability was checked (each once)
         with kernels():
             if start is not None:
-                p, s, lin = self._start_warm(X, d, mat, *start)
+                p, s, lin = self._linearised(lambda k: k.start_warm(X, d, mat, *start))
             elif rest is not None:
-                p, s, lin = self._start_at_rest(X, d, mat, rest.parts)
+                p, s, lin = self._linearised(lambda k: k.start_at_rest(X, d, mat, rest.parts))
             else:
-                p, s, lin = self._start(X, d, mat)
+                p, s, lin = self._linearised(lambda k: k.start(X, d, mat))
         # the first iteration's factor, where the batch factorised it for this design
         shared = rest if start is None and rest is not None and rest.factorised else None
         while True:
@@ -318,7 +346,7 @@ class HostNewton:
                     ws.factorise(lin.kel, float(shift))
             du = factor.solve(lin.rhs)
             with kernels():
-                s, lin = self._step(p, lin, du)
+                s, lin = self._linearised(lambda k, lin=lin: k.step(p, lin, du), lin.kel.which.shape[-1])
         self.backend.count("newton_solves")
         self.backend.count("newton_iterations", int(s.it))
         return result(s)
@@ -331,7 +359,7 @@ class HostNewton:
         factor of K + sigma_hi I then amplifies the lowest modes most, and Rayleigh-Ritz on a block of
         them gives the direction of most negative curvature. None if the energy does not fall along it."""
         with self.backend.clock.time("saddles"):
-            kel = np.asarray(lin.kel)
+            kel = jax.device_get(lin.kel)
             unstable = lambda sigma: ws.factorise(kel, sigma) or self.backend.inertia(ws)
             lo, hi = 0.0, 1e-9 * float(lin.state.k_ref)
             while unstable(hi):
@@ -353,7 +381,8 @@ class HostNewton:
             v, curvature = V @ Y[:, 0], float(theta[0])
             if not curvature < 0:
                 return None
-            left, ok = self._leave(p, lin, jnp.asarray(v), curvature)
+            left, ok = self._linearised(lambda k: k.leave(p, lin, jnp.asarray(v), curvature), lin.kel.which.shape[-1],
+                                        lambda out: out[0].kel)
             if not bool(ok):
                 return None
             self.backend.count("saddles_left")
@@ -362,7 +391,8 @@ class HostNewton:
     def adjoint(self, X, d, mat, u_free, u_bar, ws):
         kernels = partial(self.backend.clock.time, "adjoint_kernels")
         with kernels():
-            kel = jax.block_until_ready(self._tangents(X, d, mat, u_free))
+            kel = jax.block_until_ready(self._linearised(lambda k: k.tangents(X, d, mat, u_free),
+                                                         tangents=lambda kel: kel))
         lam = ws.adjoint(kel, u_bar)
         with kernels():
             return jax.block_until_ready(self._pullback(X, d, mat, u_free, jnp.asarray(lam)))
@@ -424,8 +454,8 @@ class HostNewton:
         for i, k in enumerate(keys):
             if k not in rests and (cold[k] > 1 or k in warm):
                 with self.backend.clock.time("newton_kernels"):
-                    lin = jax.block_until_ready(self._start(Xs[i], ds[i], mats[i])[2])
-                finite = np.all(np.isfinite(lin.kel))  # else every solve of it ends at once (NONFINITE_INPUT)
+                    lin = jax.block_until_ready(self._linearised(lambda k: k.start(Xs[i], ds[i], mats[i]))[2])
+                finite = all(np.all(np.isfinite(K)) for K in lin.kel[:2])  # else every solve of it ends at once (NONFINITE_INPUT)
                 rests[k] = AtRest(self.backend, lin, factorise=cold[k] > 1 and finite)
         return [rests.get(k) for k in keys]
 

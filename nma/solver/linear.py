@@ -58,7 +58,7 @@ class Workspace:
     def factorise(self, kel, shift: float = 0.0) -> None:
         clock = self.backend.clock
         with clock.time("assembly"):
-            A = self.backend.pattern.matrix(np.asarray(kel), shift)
+            A = self.backend.pattern.matrix(kel, shift)
         with clock.time("factorisation"):
             self.factor = self.backend.factorise(A, self.factor)
         self.backend.count("factorisations")
@@ -78,7 +78,7 @@ class Workspace:
         scale = np.linalg.norm(rhs)
         if scale == 0.0:  # e.g. a sample masked out of the loss
             return np.zeros_like(rhs)
-        A = self.backend.pattern.matrix(np.asarray(kel))
+        A = self.backend.pattern.matrix(kel)
         if self.factor is not None:
             x = self.solve(rhs)
             for k in range(REFINE_STEPS + 1):
@@ -251,14 +251,22 @@ class DenseBackend:
 
     def __init__(self, disc: Discretisation):
         rows, cols = element_entries(disc)
-        keep = np.flatnonzero((rows >= 0) & (cols >= 0))
         self.n = disc.n_dofs
+        E = disc.elem_points.reshape(-1, 9).shape[0] * 18 * 18
+        keep = np.flatnonzero((rows[:E] >= 0) & (cols[:E] >= 0))
         self.keep, self.rows, self.cols = keep, rows[keep], cols[keep]
+        # each contact block's entries, a Dirichlet dof's row or column past the matrix (dropped)
+        self.contact_rows, self.contact_cols = (np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18)
+                                                for a in (rows, cols))
         self.stats = {}  # counts happen inside traced code; nothing to report
 
     def _matrix(self, kel, shift):
-        K = jnp.zeros((self.n, self.n), kel.dtype).at[self.rows, self.cols].add(kel.reshape(-1)[self.keep])
-        return K + shift * jnp.eye(self.n, dtype=kel.dtype)
+        Ke = kel.elements
+        K = jnp.zeros((self.n, self.n), Ke.dtype).at[self.rows, self.cols].add(Ke.reshape(-1)[self.keep])
+        if kel.which.shape[-1]:  # empty slots: zero blocks
+            at = jnp.maximum(kel.which, 0)
+            K = K.at[self.contact_rows[at], self.contact_cols[at]].add(kel.contact.reshape(len(at), -1), mode="drop")
+        return K + shift * jnp.eye(self.n, dtype=Ke.dtype)
 
     def solve(self, kel, rhs, shift):
         return jnp.linalg.solve(self._matrix(kel, shift), rhs)

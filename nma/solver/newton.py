@@ -38,6 +38,7 @@ energy, usually a minimum; where a symmetric path has passed a buckling point it
 """
 from __future__ import annotations
 
+import copy
 from typing import NamedTuple
 
 import jax
@@ -46,8 +47,8 @@ import numpy as np
 
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
-from ..mechanics.energy import (Quadrature, check_point_dets, energy_force_tangents, quadrature, step_bounds,
-                                strain_energy)
+from ..mechanics.energy import (Quadrature, Tangents, check_point_dets, energy_force_tangents, quadrature,
+                                step_bounds, strain_energy)
 from .assembly import element_dofs
 from .options import NewtonOptions
 
@@ -133,16 +134,25 @@ class _State(NamedTuple):
 
 
 class Equations:
-    """The discrete equilibrium equations of one scene: everything Newton and the adjoint need."""
+    """The discrete equilibrium equations of one scene: everything Newton and the adjoint need.
+    `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
 
-    def __init__(self, disc: Discretisation):
+    def __init__(self, disc: Discretisation, contact_slots: int | None = None):
         self.disc = disc
+        self.contact_slots = contact_slots
         self.free = jnp.asarray(disc.free_dofs)
         self.dirichlet = jnp.asarray(disc.dirichlet_dofs)
         self.A = jnp.asarray(disc.actuation_matrix)
         self.f_ext = jnp.asarray(disc.external_force)
         self.f_free = self.f_ext[self.free]
         self.edofs = jnp.asarray(element_dofs(disc))
+        self.elements = disc.elem_points.reshape(-1, 9).shape[0]
+
+    def with_contact_slots(self, slots: int | None) -> "Equations":
+        """The same equations, their linearisations with room for `slots` contact blocks."""
+        other = copy.copy(self)
+        other.contact_slots = slots
+        return other
 
     def full(self, u_free, u_dir):
         """Every control point's displacement from the free DOFs and the prescribed ones."""
@@ -158,23 +168,31 @@ class Equations:
         return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat)
 
     def linearise(self, quad, u_free, u_dir, load, mat, contact_normal=False):
-        """Potential, free residual g_f and element tangents at a state (`contact_normal`: contact's
-        blocks of its normal stiffness only, nma.mechanics.contact.force_and_blocks)."""
+        """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks of
+        its normal stiffness only, nma.mechanics.contact.force_and_blocks)."""
         u = self.full(u_free, u_dir)
-        energy, force, kel = energy_force_tangents(self.disc, quad, u, mat, contact_normal)
+        energy, force, kel = energy_force_tangents(self.disc, quad, u, mat, contact_normal, self.contact_slots)
         potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
         return potential, force.reshape(-1)[self.free] - load * self.f_free, kel
 
-    def curvature(self, kel, v_free):
-        """v^T K_ff v: the energy's second derivative along the free-dof direction v."""
-        v = jnp.zeros(2 * self.disc.n_points, kel.dtype).at[self.free].set(v_free)[self.edofs]
-        return jnp.einsum("ea,eab,eb->", v, kel, v)
+    def blocks(self, kel: Tangents):
+        """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty slot's
+        block is zero)."""
+        contact = self.edofs[self.elements + jnp.maximum(kel.which, 0)]
+        return (self.edofs[:self.elements], kel.elements), (contact, kel.contact)
 
-    def coupling(self, kel, u_D):
+    def curvature(self, kel: Tangents, v_free):
+        """v^T K_ff v: the energy's second derivative along the free-dof direction v."""
+        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.free].set(v_free)
+        return sum(jnp.einsum("ea,eab,eb->", v[dofs], K, v[dofs]) for dofs, K in self.blocks(kel))
+
+    def coupling(self, kel: Tangents, u_D):
         """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
-        v = jnp.zeros(2 * self.disc.n_points, kel.dtype).at[self.dirichlet].set(u_D)
-        fe = jnp.einsum("eab,eb->ea", kel, v[self.edofs])
-        return jnp.zeros_like(v).at[self.edofs].add(fe)[self.free]
+        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.dirichlet].set(u_D)
+        f = jnp.zeros_like(v)
+        for dofs, K in self.blocks(kel):
+            f = f.at[dofs].add(jnp.einsum("eab,eb->ea", K, v[dofs]))
+        return f[self.free]
 
 
 class Problem(NamedTuple):
@@ -201,7 +219,7 @@ class Linearised(NamedTuple):
     state: _State
     energy: jnp.ndarray
     g: jnp.ndarray
-    kel: jnp.ndarray
+    kel: Tangents
     rhs: jnp.ndarray
 
 
@@ -246,7 +264,8 @@ def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
     """The tolerance, the stiffness scale k_ref and the force scale f_ref, from the element tangents at
     rest: f_ref the norm of the linearised out-of-balance force of the full load, k_ref the largest
     diagonal entry."""
-    kdiag = jnp.max(jnp.abs(jnp.diagonal(kel, axis1=1, axis2=2)))
+    kdiag = jnp.max(jnp.stack([jnp.max(jnp.abs(jnp.diagonal(K, axis1=1, axis2=2)), initial=0.0)
+                               for _, K in eqs.blocks(kel)]))
     f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
     return opts.rtol * f_ref + opts.atol * kdiag * p.size, kdiag, f_ref
 
