@@ -192,6 +192,19 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     np.testing.assert_allclose(solved[2][0], solved[None][0], rtol=0, atol=1e-13 * np.abs(solved[None][0]).max())
 
 
+def test_the_traced_driver_reaches_the_same_touching_state(cell, touching):
+    """The dense backend's Newton (one traced while_loop, a batch under vmap) assembles the contact blocks
+    from the same Tangents: its touching state is the host driver's, its open one that without contact."""
+    sims, params, X, _ = cell
+    sim, _, _, u = touching
+    dense = Simulator(sim.disc, "dense", TIGHT)
+    ds = jnp.array([[OPEN], [CLOSED]])
+    (us, info) = jax.jit(jax.vmap(dense.equilibrium, in_axes=(None, 0, None)))(X, ds, MAT)
+    assert np.all(np.asarray(info.status) == newton.CONVERGED)
+    np.testing.assert_allclose(us[1], u, rtol=0, atol=1e-8 * float(jnp.abs(u).max()))
+    np.testing.assert_allclose(us[0], sims[False].solve(params, ds[0], MAT).u, rtol=0, atol=1e-8 * float(jnp.abs(u).max()))
+
+
 def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_the_exact_tangent_does(cell, touching):
     """contact.force_and_blocks(normal=...): the same energy and force, and tangent blocks that keep each
     term's normal stiffness only, positive semi-definite where the exact blocks are not.  Newton takes them

@@ -256,7 +256,7 @@ class DenseBackend:
         keep = np.flatnonzero((rows[:E] >= 0) & (cols[:E] >= 0))
         self.keep, self.rows, self.cols = keep, rows[keep], cols[keep]
         # each contact block's entries, a Dirichlet dof's row or column past the matrix (dropped)
-        self.contact_rows, self.contact_cols = (np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18)
+        self.contact_rows, self.contact_cols = (jnp.asarray(np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18))
                                                 for a in (rows, cols))
         self.stats = {}  # counts happen inside traced code; nothing to report
 
