@@ -36,7 +36,7 @@ class SparsePattern:
     def matrix(self, kel, shift: float = 0.0) -> sp.csr_matrix:
         """K_ff (+ shift I) from Tangents (nma.mechanics.energy), its arrays on the host or not."""
         Ke, Kc, which = (np.asarray(a) for a in kel[:3])
-        if int(kel.near) > len(which):
+        if not bool(kel.complete):
             raise RuntimeError(f"these tangents have room for {len(which)} contact blocks, but {int(kel.near)} "
                                f"are near: linearise again with more contact slots")
         data = np.bincount(self.kept_slots, weights=Ke.reshape(-1)[self.kept], minlength=self.nnz + 1)

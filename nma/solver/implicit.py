@@ -254,10 +254,10 @@ class HostNewton:
                 kernels = self._kernels.get(room) or self._kernels.setdefault(
                     room, Kernels(self.eqs.with_contact_slots(room), self.opts))
             out = call(kernels)
-            near = int(tangents(out).near)
-            if room is None or near <= room:
+            kel = tangents(out)
+            if bool(kel.complete):
                 return out
-            while slots < near:
+            while slots < int(kel.near):
                 slots *= 4
 
     def _map(self, fn, items):
