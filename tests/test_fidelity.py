@@ -290,3 +290,27 @@ def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_se
     assert "| gradient radii |" in study.convergence_report(result, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["translation_unpinned_graded2.5.convergence.json",
                                                           "translation_unpinned_graded2.5.convergence.md"]
+
+
+def test_error_map_finds_each_regions_order_of_a_manufactured_ladder():
+    """experiments/error_map.py's arithmetic: deformed states x_m = X + h_m^p f(X) with one order p1
+    within the radius of a segment's end and another p2 elsewhere (h = 1 / spans, spans = control
+    points - 2) must give back p1 near the ends, p2 elsewhere, on both triples of the ladder."""
+    from experiments import error_map
+
+    s = np.linspace(0.0, 10.0, 21)
+    X = np.stack(np.meshgrid(s, s, indexing="ij"), axis=-1)[None]   # one patch, (1, S, S, 2)
+    ends = [[0.0, 0.0], [10.0, 10.0]]
+    r = np.min(np.linalg.norm(X[..., None, :] - np.asarray(ends), axis=-1), axis=-1)
+    near = r < 2.5
+    field = np.where(near[..., None], [3.0, -1.0], [0.5, 2.0]) * (1.0 + 0.1 * X)
+    p1, p2, ladder = 0.7, 1.6, [11, 14, 17, 20]
+    levels = {m: {"reference": X, "deformed": X + field * np.where(near, (1.0 / (m - 2)) ** p1,
+                                                                   (1.0 / (m - 2)) ** p2)[..., None]}
+              for m in ladder}
+    found = error_map.regions({"levels": levels, "ends": ends}, ladder, 2.5)
+    rows = found["rows"]
+    np.testing.assert_allclose(rows["rms near the segments' ends"]["orders"], [p1, p1], rtol=1e-6)
+    np.testing.assert_allclose(rows["rms elsewhere"]["orders"], [p2, p2], rtol=1e-6)
+    assert found["near_fraction"] == pytest.approx(near.mean())
+    assert len(rows["max"]["differences"]) == 3 and rows["max"]["differences"][0] > rows["max"]["differences"][-1]
