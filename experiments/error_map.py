@@ -44,7 +44,7 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
     from nma.mechanics.material import material
     from nma.schema import Fidelity, scene_from_config
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED
+    from nma.solver.newton import CONVERGED, failure
     from nma.solver.options import NewtonOptions
 
     spec = scene_config(scene, unpinned)
@@ -58,8 +58,8 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
         X = sim.reference_points(geom)
         t0 = time.perf_counter()
         u, info = sim.equilibrium(X, jnp.asarray(d), material(0.07, 0.3))
-        if int(info.status) != CONVERGED:
-            raise SystemExit(f"{scene} at {m} x 5, grading {grading}: the solve did not converge")
+        if int(info.status) != CONVERGED:  # how far it got and why
+            raise SystemExit(str(failure(info, f"{scene} at {m} x 5, grading {grading:g}: ")))
         out["levels"][m] = {"reference": np.asarray(sample_positions(sim.disc, X, SAMPLES)),
                             "deformed": np.asarray(sample_positions(sim.disc, X + u, SAMPLES)),
                             "dofs": sim.disc.n_dofs, "iterations": int(info.iterations),
@@ -114,8 +114,19 @@ def main():
     ap.add_argument("--radius", type=float, default=2.5, help="'near the segments' ends': within this distance")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "error_map")
     args = ap.parse_args()
-    if len(args.ladder) < 3:
-        ap.error("--ladder needs at least three levels (an order takes three)")
+    if len(args.ladder) < 3 or args.ladder != sorted(set(args.ladder)):
+        ap.error(f"--ladder must be at least three increasing levels (an order takes three), got {args.ladder}")
+    if args.radius <= 0:
+        ap.error(f"--radius must be > 0, got {args.radius}")
+    from nma.errors import ConfigError
+    from nma.schema import Fidelity
+
+    try:  # every setting checked before the first solve
+        for g in args.gradings:
+            for m in args.ladder:
+                Fidelity(m, 5, grading=g)
+    except ConfigError as e:
+        ap.error(str(e))
     args.out.mkdir(parents=True, exist_ok=True)
     stem = args.scene + ("_unpinned" if args.unpinned else "")
     result = {"scene": args.scene, "unpinned": args.unpinned, "ladder": args.ladder, "radius": args.radius,
