@@ -26,7 +26,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "experiments"))  # the sibling script, also where a test imports this one
-from fidelity_study import SCENES, observed_order, scene_config  # noqa: E402
+from fidelity_study import SCENES, observed_order, scene_config, study_draws  # noqa: E402
 
 SAMPLES = 41  # material points per patch side
 
@@ -52,9 +52,8 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
     for m in ladder:
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(m, 5, grading=grading)), "auto",
                         NewtonOptions(rtol=1e-12, element_bound=False))
-        rng = np.random.default_rng(0)  # the fidelity study's first draw
-        geom = sim.disc.design.random_params(rng)
-        d = rng.uniform(-0.5, 0.5, sim.n_actuations) * float(config.load("task", scene)["d_max"])
+        geom, ds = study_draws(sim, float(config.load("task", scene)["d_max"]), 1)  # the study's first draw
+        d = ds[0]
         X = sim.reference_points(geom)
         t0 = time.perf_counter()
         u, info = sim.equilibrium(X, jnp.asarray(d), material(0.07, 0.3))

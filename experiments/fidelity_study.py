@@ -101,6 +101,14 @@ def stats(xs) -> dict:
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
+def study_draws(sim, d_max: float, draws: int, seed: int = 0):
+    """The study's draws, the same for every setting of a scene: one random design inside the design
+    box, and `draws` actuation vectors uniform in [-d_max/2, d_max/2]."""
+    rng = np.random.default_rng(seed)
+    geom = sim.disc.design.random_params(rng)
+    return geom, rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * d_max
+
+
 def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False) -> dict:
     """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws, with
     knots graded by `grading` (fidelity.grading), and the scene's pinned points removed where `unpinned`
@@ -125,10 +133,8 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading if ctrl > 5 else 1.0)),
                         "auto", NewtonOptions(rtol=rtol, element_bound=False))
         task = TASKS.get(scene)(build(TASK_SCHEMAS[scene], config.load("task", scene)), sim)
-        rng = np.random.default_rng(seed)  # the same draws for every setting
-        geom = sim.disc.design.random_params(rng)
+        geom, ds = study_draws(sim, task.d_max, draws, seed)
         learned = [k for k in geom if k not in task.frozen_geometry]
-        ds = rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * task.d_max
         ts = task.sample(jax.random.PRNGKey(seed), draws)
         mat = material(0.07, 0.3)
 
