@@ -114,6 +114,33 @@ def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
     np.testing.assert_allclose(on.u, stopped.u, rtol=0, atol=1e-8 * float(jnp.abs(stopped.u).max()))
 
 
+def test_a_warm_start_whose_walls_cross_under_the_new_design_is_redone_from_rest(cell):
+    """A warm start carries a kept equilibrium's displacements to a design that has moved since.  Where
+    the pore's walls, touching in that equilibrium, cross under the new design, the barrier (which sees
+    distances, not sides) would hold them crossed: that warm solve converged to a state passing through
+    itself (0.28 from the cold answer) before setup checked the walls' time of impact on the way from
+    the old design to the new one.  Now it ends at once (WALLS_CROSS) and is redone from rest; a start
+    whose walls do not cross is taken."""
+    sims, params, X, _ = cell
+    d = jnp.array([[CLOSED]])
+    warm = Simulator(sims[True].disc, "superlu", NewtonOptions(rtol=1e-12, max_iters=500, warm_start=True,
+                                                               warm_audit=0))
+    u_with = warm.equilibrium_batch(X, d, MAT).u[0]  # from rest, kept: the walls touching
+    u_without = sims[False].solve(params, d[0], MAT).u  # passes through itself
+    stats = warm.warm_starts.stats
+    for shift, crosses in ((1.0, True), (0.2, False)):
+        moved = X + shift * (u_without - u_with)  # the top wall lowered towards the bottom one
+        checker = StateChecker(warm.disc, moved)
+        assert checker.check(u_with).valid != crosses  # the start, under the moved design
+        before = dict(stats)
+        eq = warm.equilibrium_batch(moved, d, MAT)
+        cold = sims[True].equilibrium_batch(moved, d, MAT)
+        assert stats["warm_solves"] - before["warm_solves"] == 1
+        assert stats["warm_converged"] - before["warm_converged"] == int(not crosses)
+        assert int(eq.info.status[0]) == newton.CONVERGED and checker.check(eq.u[0]).valid
+        np.testing.assert_allclose(eq.u, cold.u, rtol=0, atol=1e-8 * float(jnp.abs(cold.u).max()))
+
+
 @pytest.fixture(scope="module")
 def touching(cell):
     sims, params, X, _ = cell

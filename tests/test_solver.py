@@ -387,7 +387,7 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
 
     kept = WarmStarts(size=2, audit_every=2)
     for k, d in enumerate(([1.0, 0.0], [0.0, 1.0], [3.0, 3.0])):
-        kept.keep(np.array(d), np.array([float(k)]), np.full(3, float(k)))
+        kept.keep(np.array(d), np.array([float(k)]), np.full(3, float(k)), np.zeros((2, 2)))
     assert kept.start(np.array([1.0, 0.1])) is None  # [1, 0] was dropped (size 2), [0, 1] is farther than rest
     near = kept.start(np.array([2.5, 2.5]))
     assert near.u_D[0] == 2.0 and not near.audit
@@ -405,7 +405,7 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
     assert not kept.enabled
     kept.clear()  # afresh: on again, nothing kept, the audits counted anew (the totals stay)
     assert kept.enabled and not kept.stopped and kept.start(np.array([2.5, 2.5])) is None
-    kept.keep(np.array([3.0, 3.0]), np.array([2.0]), np.zeros(3))
+    kept.keep(np.array([3.0, 3.0]), np.array([2.0]), np.zeros(3), np.zeros((2, 2)))
     assert kept.start(np.array([2.5, 2.5])) is not None and kept.stats["audits"] == 11
 
     warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)), warm_audit=1)

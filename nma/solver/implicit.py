@@ -57,9 +57,12 @@ KEPT_OTHER_EQUILIBRIA = 100  # audits that found another equilibrium, recorded (
 
 
 class Start(NamedTuple):
-    """Where a warm solve starts: a kept equilibrium's free displacements and prescribed ones."""
+    """Where a warm solve starts: a kept equilibrium's free displacements and prescribed ones, and the
+    reference points of the design it was solved on (with contact its walls must not cross on the way
+    to this design's)."""
     u_free: np.ndarray
     u_D: np.ndarray
+    X: np.ndarray
     audit: bool  # also solve cold, and take the cold answer where they differ
 
 
@@ -88,7 +91,7 @@ class WarmStarts:
 
     def clear(self) -> None:
         self.enabled, self.stopped = True, ""
-        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free)
+        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free, X)
         self._taken = self._audits = self._other = 0
 
     def start(self, d: np.ndarray) -> Start | None:
@@ -96,17 +99,17 @@ class WarmStarts:
         kept is nearer than rest (or warm starts are off)."""
         if not (self.enabled and self._kept):
             return None
-        dist = [np.linalg.norm(d - kd) for kd, _, _ in self._kept]
+        dist = [np.linalg.norm(d - kept[0]) for kept in self._kept]
         i = int(np.argmin(dist))
         if not dist[i] < np.linalg.norm(d):
             return None
         self._taken += 1
-        _, u_D, u_free = self._kept[i]
-        return Start(u_free, u_D, self.audit_every > 0 and self._taken % self.audit_every == 0)
+        _, u_D, u_free, X = self._kept[i]
+        return Start(u_free, u_D, X, self.audit_every > 0 and self._taken % self.audit_every == 0)
 
-    def keep(self, d, u_D, u_free) -> None:
+    def keep(self, d, u_D, u_free, X) -> None:
         if self.enabled:
-            self._kept.append((np.array(d), np.array(u_D), np.array(u_free)))
+            self._kept.append((np.array(d), np.array(u_D), np.array(u_free), np.array(X)))
             del self._kept[:-self.size]
 
     def record(self, **counts) -> None:
@@ -271,7 +274,7 @@ class HostNewton:
         solve is also solved from rest, and the cold answer taken where they differ."""
         if start is not None:
             escape = self.opts.escape_saddles and self.backend.reports_inertia
-            warm = (start.u_free, start.u_D, rest.kel)
+            warm = (start.u_free, start.u_D, rest.kel, start.X)
             u, info = self._solve(X, d, mat, ws, escape, warm, self.opts.warm_iters)
             converged = int(info.status) == CONVERGED
             self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
@@ -436,11 +439,11 @@ class HostNewton:
             for rest in {id(r): r for r in rests if r is not None}.values():
                 rest.release()
         if self.warm is not None:
-            for d, (u, info, _), audit in zip(ds, solved, audits):
+            for X, d, (u, info, _), audit in zip(Xs, ds, solved, audits):
                 if audit is not None:
                     self.warm.audited(audit)
                 if int(info.status) == CONVERGED:
-                    self.warm.keep(d, self._A @ d, u)
+                    self.warm.keep(d, self._A @ d, u, X)
         return _stack(solved, lead)
 
     def _at_rest(self, Xs, ds, mats, starts) -> list[AtRest | None]:
@@ -486,8 +489,8 @@ def _start_at_rest(eqs, opts, X, d, mat, at_rest):
     return p, s, linearise(eqs, opts, p, s, at_rest)
 
 
-def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest):
-    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest))
+def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest, X0):
+    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest, X0))
     return p, s, linearise(eqs, opts, p, s)
 
 

@@ -47,12 +47,13 @@ import numpy as np
 
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
+from ..mechanics import contact
 from ..mechanics.energy import (Quadrature, Tangents, check_point_dets, energy_force_tangents, quadrature,
                                 step_bounds, strain_energy)
 from .assembly import element_dofs
 from .options import NewtonOptions
 
-RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT, INVERTS = 0, 1, 2, 3, 4, 5
+RUNNING, CONVERGED, INCREMENT_TOO_SMALL, ITERATION_LIMIT, NONFINITE_INPUT, INVERTS, WALLS_CROSS = 0, 1, 2, 3, 4, 5, 6
 FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearly converged...
 FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this factor of the tolerance
 TRUST_ACCEPT, TRUST_POOR, TRUST_GOOD = 0.1, 0.25, 0.75  # actual over predicted fall: taken, shift raised, lowered
@@ -65,7 +66,9 @@ STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INVERTS: ("the load increment fell below solver.min_increment where the material would invert "
                          "between Gauss points (det F at an element's 4 x 4 check points, which solver.element_bound "
                          "keeps positive; without the bound the solve may go on to a state inverted there, not a "
-                         "physical object)")}
+                         "physical object)"),
+               WALLS_CROSS: ("a warm start whose pores' walls cross each other under this design (it moved since "
+                             "that equilibrium was kept); such a start is redone from rest")}
 
 
 class NewtonInfo(NamedTuple):
@@ -225,9 +228,10 @@ class Linearised(NamedTuple):
 
 def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, _State]:
     """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input, INVERTS for
-    a warm start inverted at the check points under this design, with element_bound).  Cold
-    (start None): at rest.  Warm (start = (u_free0, u_D0, kel_rest): another sample's equilibrium, under
-    the full dead load, and this design's element tangents at rest): the load walks from u_D0 to this
+    a warm start inverted at the check points under this design, with element_bound, WALLS_CROSS for one
+    whose pores' walls cross under it, with contact).  Cold (start None): at rest.  Warm (start =
+    (u_free0, u_D0, kel_rest, X0): another sample's equilibrium, under the full dead load, this design's
+    element tangents at rest, and the reference points X0 it was solved on): the load walks from u_D0 to this
     sample's u_D.  Either way the first iteration is a
     predictor, whose right-hand side -(g + K_fD (u_D - u_D0)) also carries the start's own residual g
     where the design moved since: the first-order response to the change of design and actuation
@@ -243,8 +247,8 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
         p = Problem(quad, u_D, mat, size, jnp.zeros_like(u_D), scalar(0.0))
         u0, tol, k_ref, f_ref = zero, scalar(0.0), scalar(1.0), scalar(0.0)
     else:
-        u0, u_D0, kel_rest = start
-        finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0))
+        u0, u_D0, kel_rest, X0 = start
+        finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0)) & jnp.all(jnp.isfinite(X0))
         p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
         tol, k_ref, f_ref = _scales(eqs, opts, p, kel_rest)
     status = jnp.where(finite, RUNNING, NONFINITE_INPUT)
@@ -253,6 +257,13 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
         # there, so the warm solve ends at once (INVERTS) and is redone cold
         J, defined = check_point_dets(eqs.disc, X, eqs.full(u0, u_D0))
         status = jnp.where(finite & jnp.any((J <= 0) & defined), INVERTS, status)
+    if start is not None and eqs.disc.contact:
+        # the start's displacements carried from the design it was solved on to this one: where a wall
+        # vertex meets a chord on the way, the start is interpenetrated here (the barrier sees distances,
+        # not sides, and would keep it so), so the warm solve ends at once and is redone cold
+        x0 = X0 + eqs.full(u0, u_D0)
+        crossed = contact.time_of_impact(eqs.disc.contact, quad.walls, x0, X - X0, horizon=1.0) <= 1.0
+        status = jnp.where(finite & crossed, WALLS_CROSS, status)
     init = _State(u0, scalar(0.0), u0, scalar(0.0), scalar(opts.initial_increment), jnp.asarray(True),
                   scalar(0.0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
                   status, tol, k_ref, scalar(jnp.inf),
