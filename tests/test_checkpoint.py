@@ -155,8 +155,9 @@ def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translat
 
 def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     """Warm starts (solver.warm_start, every warm solve audited) keep equilibria between steps; every
-    checkpoint starts them afresh, so a run stopped at a checkpoint and resumed solves exactly as the one
-    not stopped: the same parameters, bit for bit.  The final evaluation solves from rest."""
+    checkpoint drops them, so a run stopped at a checkpoint and resumed solves exactly as the one
+    not stopped: the same parameters, bit for bit.  The audits' tallies, which decide whether warm starts
+    stop, go into the checkpoint and come back on resume.  The final evaluation solves from rest."""
     import jax
     import numpy as np
 
@@ -183,3 +184,4 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     leaves = lambda t: jax.tree_util.tree_leaves(t.state["params"])  # noqa: E731
     for a, b in zip(leaves(whole), leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert resumed.sim.warm_starts.verdict == whole.sim.warm_starts.verdict == (stats["audits"], 0)

@@ -382,7 +382,8 @@ def test_a_warm_start_reaches_the_cold_equilibrium_in_fewer_iterations():
 def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it():
     """The kept equilibrium nearest in actuation is taken, none where rest is nearer; every
     warm_audit-th warm solve is also solved cold; once more than a tenth of at least eight audits found
-    another equilibrium, warm starts stop (and say why) until clear() starts afresh."""
+    another equilibrium, warm starts stop (and say why) for the rest of the run: clear() (a checkpoint)
+    drops what is kept but not the run's tallies, which restore() puts back on resume."""
     from nma.solver.implicit import Audit, WarmStarts
 
     kept = WarmStarts(size=2, audit_every=2)
@@ -402,11 +403,18 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
     assert [o["energy_warm"] for o in kept.other_equilibria] == [1.0, 1.2]
     with kept.paused():
         assert kept.start(np.array([2.5, 2.5])) is None
-    assert not kept.enabled
-    kept.clear()  # afresh: on again, nothing kept, the audits counted anew (the totals stay)
-    assert kept.enabled and not kept.stopped and kept.start(np.array([2.5, 2.5])) is None
+    kept.clear()  # a checkpoint: nothing kept, the run's tallies and so the stop stay
+    assert not kept.enabled and kept.stopped and kept.verdict == (11, 2)
+    kept.restore(20, 1)  # a resumed run whose checkpoint had 1 of 20: on
+    assert kept.enabled and not kept.stopped and kept.start(np.array([2.5, 2.5])) is None  # nothing kept
     kept.keep(np.array([3.0, 3.0]), np.array([2.0]), np.zeros(3), np.zeros((2, 2)))
-    assert kept.start(np.array([2.5, 2.5])) is not None and kept.stats["audits"] == 11
+    assert kept.start(np.array([2.5, 2.5])) is not None
+    kept.audited(Audit(0.3, 1.0, 1.1))
+    assert kept.enabled and kept.verdict == (21, 2)  # under a tenth
+    kept.audited(Audit(0.3, 1.0, 1.1))
+    assert kept.stopped.startswith("3 of 22 audited") and kept.stats["stops"] == 2
+    kept.restore(11, 2)  # a checkpoint written after the stop: stopped again, not counted as another
+    assert not kept.enabled and kept.stats["stops"] == 2
 
     warm, cold = _warm_and_cold(discretise(scene_from_config(SMALL)), warm_audit=1)
     mat = material(0.07, 0.3)

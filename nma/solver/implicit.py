@@ -75,10 +75,13 @@ class WarmStarts:
     A structure with several equilibria under one actuation (a near-mechanism, a buckled wall) can
     reach another from a warm start than from rest.  Every `audit_every`-th warm solve is therefore
     also solved cold; where the two differ the cold answer is taken, and once more than `max_other`
-    of at least MIN_AUDITS audits differed, warm starts stop (`stopped` says why).  `clear()` starts
-    afresh: nothing kept, warm starts on, the audits counted anew.  The trainer clears at every
-    checkpoint, so that a run resumed there solves exactly as one not interrupted.  `stats` and
-    `other_equilibria` count everything since the simulator was built (they decide nothing)."""
+    of at least MIN_AUDITS audits differed, warm starts stop for the rest of the run (`stopped` says
+    why).  `clear()` (the trainer's, at every checkpoint) drops what is kept, so that a run resumed there
+    solves exactly as one not interrupted; the audits' tallies (`verdict`) go on over the run and into
+    the checkpoint (`restore`).  (Counted anew at every checkpoint, as they were, a stage that
+    checkpoints every 10 steps never reached MIN_AUDITS: 3 of 14 audits differed and warm starts went
+    on.)  `stats` and `other_equilibria` count everything since the simulator was built (they decide
+    nothing)."""
 
     def __init__(self, size: int, audit_every: int, max_other: float = MAX_OTHER_EQUILIBRIA):
         self.size, self.audit_every, self.max_other = size, audit_every, max_other
@@ -87,12 +90,32 @@ class WarmStarts:
                       "cold_iterations": 0, "audits": 0, "audits_same": 0, "audits_within_1e-8": 0,
                       "audit_largest_difference": 0.0, "stops": 0}
         self._lock = threading.Lock()
+        self._audits = self._other = 0
+        self.enabled, self.stopped = True, ""
         self.clear()
 
     def clear(self) -> None:
-        self.enabled, self.stopped = True, ""
+        """Nothing kept (the audits' tallies, and so whether warm starts are on, stay)."""
         self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (d, u_D, u_free, X)
-        self._taken = self._audits = self._other = 0
+        self._taken = 0
+
+    @property
+    def verdict(self) -> tuple[int, int]:
+        """(audits, of them on another equilibrium) over the run: what decides whether warm starts stop."""
+        return self._audits, self._other
+
+    def restore(self, audits: int, other: int) -> None:
+        """A checkpoint's tallies: a resumed run goes on as the run it continues (stopped where it was)."""
+        self._audits, self._other = int(audits), int(other)
+        self.enabled, self.stopped = True, ""
+        self._judge(count=False)
+
+    def _judge(self, count: bool = True) -> None:
+        if self.enabled and self._audits >= MIN_AUDITS and self._other > self.max_other * self._audits:
+            self.enabled, self._kept = False, []
+            self.stats["stops"] += int(count)
+            self.stopped = (f"{self._other} of {self._audits} audited warm solves reached another equilibrium "
+                            f"than the cold solve: this design has several under one actuation")
 
     def start(self, d: np.ndarray) -> Start | None:
         """The start of a solve at actuation d: the kept equilibrium nearest to it, None where nothing
@@ -128,11 +151,7 @@ class WarmStarts:
             self.other_equilibria.append(audit._asdict())
         self._audits += 1
         self._other += int(not same)
-        if self.enabled and self._audits >= MIN_AUDITS and self._other > self.max_other * self._audits:
-            self.enabled, self._kept = False, []
-            st["stops"] += 1
-            self.stopped = (f"{self._other} of {self._audits} audited warm solves reached another equilibrium "
-                            f"than the cold solve: this design has several under one actuation")
+        self._judge()
 
     @contextmanager
     def paused(self):

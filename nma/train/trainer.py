@@ -185,7 +185,7 @@ class Trainer:
                           f"step {step}: no sample of the batch converged; ")
         warm = self.sim.warm_starts
         if warm is not None and warm.stopped and not self._warm_stop_said:
-            log.warning("step %d: warm starts stopped: %s; solves start from rest until the next checkpoint",
+            log.warning("step %d: warm starts stopped: %s; solves start from rest for the rest of the run",
                         step + 1, warm.stopped)
             self._warm_stop_said = True
         if n_inverts and self.cfg.inversion_penalty == 0 and not self._inverts_said:
@@ -279,15 +279,25 @@ class Trainer:
     def checkpoint_dir(self) -> Path:
         return self.run_dir / "checkpoints"
 
-    def _payload(self):
-        return {**self.state, "history": json.dumps(self.history), "config": json.dumps(self.fingerprint)}
+    def _payload(self, warm_audits=()):
+        return {**self.state, "history": json.dumps(self.history), "config": json.dumps(self.fingerprint),
+                "warm_audits": json.dumps(list(warm_audits))}
+
+    def _warm_audits(self) -> list[list[int]]:
+        """Every rank's warm-start audit tallies (WarmStarts.verdict), [] without warm starts."""
+        warm = self.sim.warm_starts
+        if warm is None:
+            return []
+        mine = np.zeros((self.world.size, 2))
+        mine[self.world.rank] = warm.verdict
+        return np.rint(self.world.allreduce_sum(mine.ravel())).astype(int).reshape(-1, 2).tolist()
 
     def save(self):
-        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: afresh
+        warm_audits = self._warm_audits()
+        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: nothing kept
             self.sim.warm_starts.clear()
-            self._warm_stop_said = False
         if self.world.is_root:
-            checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload())
+            checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload(warm_audits))
 
     def try_resume(self) -> bool:
         """Continue from the newest readable checkpoint whose config fingerprint matches this run's
@@ -298,6 +308,7 @@ class Trainer:
         path, raw = found
         if self.cfg.resume != "force":
             checkpoint.check_fingerprint(path, raw, self.fingerprint)
+        raw.setdefault("warm_audits", "[]")  # a checkpoint from before the tallies were kept
         try:
             restored = checkpoint.restore(raw, self._payload())
         except Exception as exc:  # structure or shapes differ: only reachable with resume=force
@@ -305,6 +316,9 @@ class Trainer:
                               f"({str(exc).splitlines()[0]})") from None
         self.history = json.loads(restored.pop("history"))
         restored.pop("config")
+        warm_audits = json.loads(restored.pop("warm_audits"))
+        if self.sim.warm_starts is not None and len(warm_audits) == self.world.size:
+            self.sim.warm_starts.restore(*warm_audits[self.world.rank])
         step = int(restored.pop("step"))
         self.state = {**jax.tree_util.tree_map(jnp.asarray, restored), "step": step}
         log.info("resumed from %s at step %d", path, self.state["step"])
