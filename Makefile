@@ -3,7 +3,7 @@ PYTHON ?= python3
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist clean
+.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -50,19 +50,22 @@ tutorial:           ## docs/tutorial.md: the strip's tasks posed in YAML (joint,
 	$(PYTHON) -m nma.run task=strip_pore scene=strip hydra.run.dir=outputs/tutorial/pore
 
 repro-translation:  ## paper translation: joint design vs frozen baseline -> outputs/repro/translation/
-	$(PYTHON) experiments/repro.py translation --baseline-steps 80
+	$(PYTHON) experiments/repro.py translation --baseline-steps 80 $(REPRO_ARGS)
 
 repro-rotation-single: ## paper rotation, single stick: joint (5x2, refined at 8x2 then 11x2 with contact) vs frozen -> outputs/repro/rotation_single/
-	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60
+	$(PYTHON) experiments/repro.py rotation_single --baseline-steps 60 $(REPRO_ARGS)
 
 repro-rotation-double: ## paper rotation, double: joint (5x2, refined at 8x2 with contact) vs frozen -> outputs/repro/rotation_double/
-	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60
+	$(PYTHON) experiments/repro.py rotation_double --baseline-steps 60 $(REPRO_ARGS)
 
 repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fine-tuning -> outputs/repro/digital_mnist/
-	$(PYTHON) experiments/repro.py digital_mnist
+	$(PYTHON) experiments/repro.py digital_mnist $(REPRO_ARGS)
 
 repro-shape-matching: ## pore shape matching (with contact): joint vs frozen vs no actuation -> outputs/repro/shape_matching/
-	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250
+	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250 $(REPRO_ARGS)
+
+repro-all:          ## every reproduction above, in two lanes side by side (one Newton thread each): the whole paper
+	$(PYTHON) experiments/repro_all.py
 
 clean:              ## remove outputs/ results and __pycache__
 	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro outputs/tutorial outputs/debug .pytest_cache

@@ -1,4 +1,5 @@
-"""Clusters: MPI data parallelism matches one process; --multirun sweeps through submitit; the SLURM preset."""
+"""Clusters: MPI data parallelism matches one process; --multirun sweeps through submitit; the SLURM preset;
+the whole paper in lanes side by side (experiments/repro_all.py)."""
 import json
 import subprocess
 import sys
@@ -59,3 +60,20 @@ def test_slurm_launcher_preset_composes():
                       return_hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
     assert cfg.hydra.launcher.cpus_per_task == 2 and cfg.hydra.launcher.partition == "cpu"
+
+
+def test_the_whole_paper_runs_every_reproduction_once_in_lanes():
+    """experiments/repro_all.py (make repro-all): every Makefile repro-* target exactly once in each lane
+    layout, each passing the lane's overrides on (REPRO_ARGS) to experiments/repro.py."""
+    import re
+    from pathlib import Path
+
+    from experiments import repro_all
+
+    makefile = (Path(__file__).resolve().parent.parent / "Makefile").read_text()
+    targets = dict(re.findall(r"^repro-([a-z-]+):.*\n\t(.*)", makefile, re.M))
+    assert targets.pop("all") == "$(PYTHON) experiments/repro_all.py"
+    assert all(recipe.startswith("$(PYTHON) experiments/repro.py ") and recipe.endswith(" $(REPRO_ARGS)")
+               for recipe in targets.values())
+    for lanes in repro_all.LANES.values():
+        assert sorted(name.replace("_", "-") for lane in lanes for name in lane) == sorted(targets)
