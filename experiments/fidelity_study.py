@@ -267,6 +267,9 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
     return {"scene": scene, **model, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
             "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
             "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
+            # each level's quantities per draw, for orders component by component (which radius converges slowest)
+            "values": {name: {f"{r['ctrl_per_patch']}x{r['quad_points']}": q[name].tolist() for r, q in
+                              zip(levels, map(quantities, levels))} for name in result["quantities"]},
             **result}
 
 
