@@ -101,18 +101,23 @@ def stats(xs) -> dict:
     return {"min": float(np.min(xs)), "median": float(np.median(xs)), "n": len(xs)}
 
 
-def study_draws(sim, d_max: float, draws: int, seed: int = 0):
+SPREAD = 0.6  # the random design's radii and corner moves: uniform over this central part of their ranges
+
+
+def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SPREAD):
     """The study's draws, the same for every setting of a scene: one random design inside the design
-    box, and `draws` actuation vectors uniform in [-d_max/2, d_max/2]."""
+    box (GridDesign.random_params with `spread`), and `draws` actuation vectors uniform in
+    [-d_max/2, d_max/2]."""
     rng = np.random.default_rng(seed)
-    geom = sim.disc.design.random_params(rng)
+    geom = sim.disc.design.random_params(rng, spread)
     return geom, rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * d_max
 
 
-def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False) -> dict:
+def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False,
+            spread: float = SPREAD) -> dict:
     """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws, with
-    knots graded by `grading` (fidelity.grading), and the scene's pinned points removed where `unpinned`
-    (its well-posed variant: the actuated segments hold it)."""
+    knots graded by `grading` (fidelity.grading), the scene's pinned points removed where `unpinned`
+    (its well-posed variant: the actuated segments hold it), the random design drawn with `spread`."""
     import jax
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
@@ -133,7 +138,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading if ctrl > 5 else 1.0)),
                         "auto", NewtonOptions(rtol=rtol, element_bound=False))
         task = TASKS.get(scene)(build(TASK_SCHEMAS[scene], config.load("task", scene)), sim)
-        geom, ds = study_draws(sim, task.d_max, draws, seed)
+        geom, ds = study_draws(sim, task.d_max, draws, seed, spread)
         learned = [k for k in geom if k not in task.frozen_geometry]
         ts = task.sample(jax.random.PRNGKey(seed), draws)
         mat = material(0.07, 0.3)
@@ -237,11 +242,11 @@ def refinement(levels: list[dict]) -> tuple[dict, dict]:
 
 
 def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: float = 1.0,
-               unpinned: bool = False) -> dict:
+               unpinned: bool = False, spread: float = SPREAD) -> dict:
     """The reference check: refinement one level past the reference, the Richardson limit, and the error
     of the settings runs train at against the reference and against that limit (worst over the draws);
-    every level with `grading` and `unpinned` (see measure)."""
-    model = {"grading": grading, "unpinned": unpinned}
+    every level with `grading`, `unpinned` and `spread` (see measure)."""
+    model = {"grading": grading, "unpinned": unpinned, "spread": spread}
     levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws, **model) for c in ladder]
     for r in levels:
         print(f"{scene}: {r['ctrl_per_patch']}x{r['quad_points']}: {r['dofs']} dofs, forward+gradient "
@@ -273,13 +278,15 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
             **result}
 
 
-def variant(scene: str, grading: float = 1.0, unpinned: bool = False) -> str:
-    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`."""
-    return scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
+def variant(scene: str, grading: float = 1.0, unpinned: bool = False, spread: float = SPREAD) -> str:
+    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`, `_spread<s>`."""
+    return (scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
+            + (f"_spread{spread:g}" if spread != SPREAD else ""))
 
 
 def stem(result: dict) -> str:
-    return variant(result["scene"], result.get("grading", 1.0), result.get("unpinned", False))
+    return variant(result["scene"], result.get("grading", 1.0), result.get("unpinned", False),
+                   result.get("spread", SPREAD))
 
 
 def convergence_report(result: dict, out: Path) -> str:
@@ -290,7 +297,9 @@ def convergence_report(result: dict, out: Path) -> str:
             else "with the paper's pinned corners")
     knots = (f"knots graded towards the patch corners (fidelity.grading={result['grading']:g})"
              if result.get("grading", 1.0) != 1.0 else "uniform knots")
-    lines = [f"# Fidelity study, reference check: {scene}, {held}, {knots}", "",
+    design = ("" if result.get("spread", SPREAD) == SPREAD
+              else f", random design's radii over the central {result['spread']:g} of their range")
+    lines = [f"# Fidelity study, reference check: {scene}, {held}, {knots}{design}", "",
              f"Successive refinement {' -> '.join(map(str, ladder))} control points per patch at "
              f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} draws.  "
              "Orders from each three successive levels (e(h) = C h^p, h = 1 / knot spans); the limit q* is "
@@ -472,7 +481,8 @@ def child(args) -> None:
     from nma.runtime import configure_jax
 
     configure_jax()
-    result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned)
+    result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned,
+                         spread=args.spread)
               if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned))
     Path(args.result).write_text(json.dumps(result))
 
@@ -497,12 +507,17 @@ def main():
                     help="--convergence with knots graded towards the patch corners (fidelity.grading)")
     ap.add_argument("--ladder", type=int, nargs="+", default=list(LADDER),
                     help=f"--convergence: control points per patch of the refinements, {REFERENCE[0]} among them")
+    ap.add_argument("--spread", type=float, default=SPREAD,
+                    help="--convergence: the random design's radii (and corner moves) uniform over this central part "
+                         f"of their ranges (default {SPREAD}; smaller: rounder pores, blunter corners)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER)):
-        ap.error("--grading and --ladder belong to --convergence (the study's fronts are of uniform knots, which "
-                 "fidelity=auto requires)")
+    if not 0.0 < args.spread <= 1.0:
+        ap.error(f"--spread must be in (0, 1] (the central part of each range), not {args.spread:g}")
+    if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER) or args.spread != SPREAD):
+        ap.error("--grading, --ladder and --spread belong to --convergence (the study's fronts, which fidelity=auto "
+                 "reads, are measured with uniform knots on the default random design)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
@@ -511,7 +526,7 @@ def main():
         args.out = ROOT / "outputs" / "studies" / ("fidelity_quick" if args.quick else "fidelity")
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
-        name = variant(scene, args.grading, args.unpinned)
+        name = variant(scene, args.grading, args.unpinned, args.spread)
         if args.replot:
             if (args.out / f"{name}.json").exists():
                 report(json.loads((args.out / f"{name}.json").read_text()), args.out)
@@ -520,7 +535,8 @@ def main():
         result_file = args.out / f".{name}.partial.json"
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
-               *(["--convergence", "--grading", str(args.grading), "--ladder", *map(str, args.ladder)]
+               *(["--convergence", "--grading", str(args.grading), "--spread", str(args.spread),
+                  "--ladder", *map(str, args.ladder)]
                  if args.convergence else []),
                *(["--unpinned"] if args.unpinned else [])]
         subprocess.run(cmd, check=True)

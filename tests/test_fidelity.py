@@ -249,6 +249,32 @@ def test_random_design_stays_in_its_box_with_convex_cells():
     assert float(np.min(design.corner_turns(params))) >= MIN_TURN
 
 
+
+def test_reference_check_on_a_blunter_random_design(monkeypatch, tmp_path):
+    """--spread draws the same random design closer to the middle of the box (the radii's deviations from
+    the middle scale with it, so pore corners are blunter), names its report for it, and a spread outside
+    (0, 1] is refused before any work."""
+    from experiments import fidelity_study as study
+    from nma.geometry.design import make_design
+    from nma.schema import scene_from_config
+
+    class Sim:  # what study_draws reads of a simulator
+        disc = type("Disc", (), {"design": make_design(scene_from_config(config.load("scene", "rotation_single")))})()
+        n_actuations = 1
+
+    lo, hi = Sim.disc.design.bounds()["radii"]
+    (wide, d_wide), (blunt, d_blunt) = (study.study_draws(Sim, 4.0, 3, spread=s) for s in (0.6, 0.3))
+    np.testing.assert_allclose(np.asarray(blunt["radii"]) - (lo + hi) / 2, (np.asarray(wide["radii"]) - (lo + hi) / 2) / 2,
+                               atol=1e-12)
+    np.testing.assert_array_equal(d_blunt, d_wide)  # the same actuations
+    assert study.variant("rotation_single", 3.0, True, 0.3) == "rotation_single_unpinned_graded3_spread0.3"
+    assert study.variant("rotation_single", 3.0, True) == "rotation_single_unpinned_graded3"
+    monkeypatch.setattr("sys.argv", ["fidelity_study.py", "--convergence", "--spread", "1.5", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        study.main()
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("orders", [(2.0,), (1.0, 0.5)])
 def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_sequence(orders, tmp_path):
     """q(h) = q* + C sum_i h^p_i with known q*, C, p_i (h = 1 / knot spans, spans = control points - 2).
