@@ -32,7 +32,7 @@ study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=aut
 study-reference:    ## is the fidelity study's reference converged? refinement to 17x5, Richardson -> outputs/studies/fidelity/*.convergence.* (STUDY_ARGS="--unpinned --grading 2")
 	$(PYTHON) experiments/fidelity_study.py --convergence $(STUDY_ARGS)
 
-study-wellposed:    ## the well-posed variants (no pins), knots graded 3, refinement 14 -> 26 x 5 -> outputs/studies/fidelity/*_unpinned_graded3.convergence.* (hours: a rotation 35-40 min, shape matching's contact levels 20+ min each)
+study-wellposed:    ## the well-posed variants (no pins), knots graded 3, refinement 14 -> 26 x 5 -> outputs/studies/fidelity/*_unpinned_graded3.convergence.* (hours: a rotation 35-50 min; shape matching's draw does not solve at 23 and 26 x 5)
 	$(PYTHON) experiments/fidelity_study.py --convergence --unpinned --grading 3 --ladder 14 17 20 23 26 $(STUDY_ARGS)
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
