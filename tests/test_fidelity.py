@@ -249,7 +249,6 @@ def test_random_design_stays_in_its_box_with_convex_cells():
     assert float(np.min(design.corner_turns(params))) >= MIN_TURN
 
 
-
 def test_reference_check_on_a_blunter_random_design(monkeypatch, tmp_path):
     """--spread draws the same random design closer to the middle of the box (the radii's deviations from
     the middle scale with it, so pore corners are blunter), names its report for it, and a spread outside
@@ -273,6 +272,31 @@ def test_reference_check_on_a_blunter_random_design(monkeypatch, tmp_path):
     with pytest.raises(SystemExit):
         study.main()
     assert not list(tmp_path.iterdir())
+
+
+def test_a_scene_whose_reference_check_fails_does_not_stop_the_others(monkeypatch, tmp_path):
+    """make study-wellposed checks every scene in turn: one whose finer levels do not solve (its child
+    process fails) is named at the end, in a non-zero exit, after the others' reports are written."""
+    import subprocess
+    from pathlib import Path
+
+    from experiments import fidelity_study as study
+
+    reported = []
+
+    def child(cmd):  # the child process: shape matching fails, the others write a result
+        scene = cmd[cmd.index("--scenes") + 1]
+        if scene != "shape_matching":
+            Path(cmd[cmd.index("--result") + 1]).write_text(json.dumps({"scene": scene}))
+        return subprocess.CompletedProcess(cmd, int(scene == "shape_matching"))
+
+    monkeypatch.setattr(study.subprocess, "run", child)
+    monkeypatch.setattr(study, "convergence_report", lambda result, out: reported.append(result["scene"]) or "")
+    monkeypatch.setattr("sys.argv", ["fidelity_study.py", "--convergence", "--scenes", "translation", "shape_matching",
+                                     "rotation_double", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="no reference check for shape_matching"):
+        study.main()
+    assert reported == ["translation", "rotation_double"]
 
 
 @pytest.mark.parametrize("orders", [(2.0,), (1.0, 0.5)])
