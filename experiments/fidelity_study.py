@@ -540,11 +540,11 @@ def main():
                   "--ladder", *map(str, args.ladder)]
                  if args.convergence else []),
                *(["--unpinned"] if args.unpinned else [])]
-        done = subprocess.run(cmd)
-        if done.returncode and args.convergence:  # the other scenes' checks go on
+        finished = subprocess.run(cmd)
+        if finished.returncode and args.convergence:  # the other scenes' checks go on
             unchecked.append(scene)
             continue
-        done.check_returncode()
+        finished.check_returncode()
         result = json.loads(result_file.read_text())
         result_file.unlink()
         if args.convergence:
