@@ -278,6 +278,49 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
             **result}
 
 
+CORNER_BINS = (45.0, 90.0)  # pore corner angles (deg) that split the radii gradient's corner radii
+
+
+def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
+    """The radii gradient's convergence split by where each radius acts: the corner radii by the pore's
+    angle at their corner (GridDesign.pore_corner_angles, on the study's random design: the sharper the
+    corner, the stronger its stress singularity), the side radii next to a corner and those mid-side.  Per group: its entries' differences
+    between levels (relative to the whole finest gradient's norm, worst over the draws, as `refinement`
+    measures the whole), the orders from each three levels, and its share of the finest difference
+    (squared norms over every draw).  None where the result has no per-level radii gradient."""
+    from nma.geometry.bspline import DESIGN_CTRL
+    from nma.geometry.design import GridDesign
+    from nma.schema import scene_from_config
+
+    values = result.get("values", {}).get("gradient radii")
+    if not values:
+        return None
+    design = GridDesign.from_spec(scene_from_config(scene_config(result["scene"], result.get("unpinned", False))))
+    # study_draws' design: the first draw of the same generator
+    geom = design.random_params(np.random.default_rng(seed), result.get("spread", SPREAD))
+    per_radius = DESIGN_CTRL - 1  # radii per pore side; the side's first is its corner's
+    angle = np.repeat(design.pore_corner_angles(geom), per_radius, axis=1).ravel()
+    place = np.tile(np.arange(4 * per_radius) % per_radius, len(design.porous))  # 0: a corner, 1 .. along the side
+    corner, middle = place == 0, place == per_radius // 2
+    edges = (0.0, *CORNER_BINS, 180.0 + 1e-9)
+    groups = {f"corner radii, pore angle {lo:g}-{min(hi, 180):.0f} deg": corner & (angle >= lo) & (angle < hi)
+              for lo, hi in zip(edges[:-1], edges[1:])}
+    groups["side radii next to a corner"] = ~corner & ~middle
+    groups["side radii mid-side"] = middle
+    q = np.array([values[k] for k in values])  # (levels, draws, radii)
+    steps, scale = np.diff(q, axis=0), np.linalg.norm(q[-1], axis=1)
+    rows = []
+    for name, mask in groups.items():
+        if not mask.any():
+            continue
+        diffs = [float(np.max(np.linalg.norm(d[:, mask], axis=1) / scale)) for d in steps]
+        rows.append({"group": name, "radii": int(mask.sum()), "differences": diffs,
+                     "orders": [observed_order(diffs[j:j + 2], result["spans"][j:j + 3])["order"]
+                                for j in range(len(diffs) - 1)],
+                     "share_of_finest_difference": float(np.sum(steps[-1][:, mask] ** 2) / np.sum(steps[-1] ** 2))})
+    return rows
+
+
 def variant(scene: str, grading: float = 1.0, unpinned: bool = False, spread: float = SPREAD) -> str:
     """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`, `_spread<s>`."""
     return (scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
@@ -319,6 +362,16 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += [f"| {quantity} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
                                             for e in v["error"].values()) + " |"
               for quantity, v in result["quantities"].items() if quantity != "observable"]
+    by_corner = radii_by_corner(result)
+    if by_corner:
+        lines += ["", "The radii gradient by where each radius acts (the corner radii by the pore's angle at their "
+                  "corner: the material around it spans 360 deg minus that, a re-entrant corner), differences "
+                  "relative to the whole finest gradient:", "",
+                  "| radii | how many | differences between levels | orders | share of the finest difference |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {g['group']} | {g['radii']} | {' -> '.join(f'{d:.3g}' for d in g['differences'])} | "
+                  f"{', '.join(fmt(o) for o in g['orders'])} | {g['share_of_finest_difference']:.2f} |"
+                  for g in by_corner]
     lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
     lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
     text = "\n".join(lines) + "\n"
@@ -497,7 +550,7 @@ def main():
                          "that a smoke run leaves the study's results as they were)")
     ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
                     help="where the measured fronts for fidelity=auto go")
-    ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only")
+    ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only (with --convergence: the reference check's)")
     ap.add_argument("--convergence", action="store_true",
                     help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
     ap.add_argument("--unpinned", action="store_true",
@@ -528,6 +581,10 @@ def main():
     unchecked = []  # scenes whose reference check failed (a level's solve did not converge: said above)
     for scene in args.scenes:
         name = variant(scene, args.grading, args.unpinned, args.spread)
+        if args.replot and args.convergence:
+            if (args.out / f"{name}.convergence.json").exists():
+                convergence_report(json.loads((args.out / f"{name}.convergence.json").read_text()), args.out)
+            continue
         if args.replot:
             if (args.out / f"{name}.json").exists():
                 report(json.loads((args.out / f"{name}.json").read_text()), args.out)

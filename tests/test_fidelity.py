@@ -342,6 +342,39 @@ def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_se
                                                           "translation_unpinned_graded2.5.convergence.md"]
 
 
+def test_radii_gradient_split_by_corner_finds_each_groups_order():
+    """A manufactured radii gradient on the single rotation's study design, whose entries converge at
+    order 1 at pore corners sharper than 45 deg, 1.5 at the other corners and 2 along the sides: each
+    group of the split must show its own order exactly (an entry in the wrong group would mix two power
+    laws), and the groups' shares of the finest difference add up to 1."""
+    from experiments import fidelity_study as study
+    from nma.geometry.design import GridDesign
+    from nma.schema import scene_from_config
+
+    design = GridDesign.from_spec(scene_from_config(study.scene_config("rotation_single", True)))
+    angle = design.pore_corner_angles(design.random_params(np.random.default_rng(0), study.SPREAD))
+    corner = np.zeros((len(design.porous), 16), bool)
+    corner[:, ::4] = True
+    order = np.full(corner.shape, 2.0)
+    order[:, ::4] = np.where(angle < 45.0, 1.0, 1.5)
+    order = order.ravel()
+    rng = np.random.default_rng(1)
+    limit, coeff = rng.normal(size=(2, order.size)), rng.normal(size=(2, order.size))
+    spans = [12, 15, 18, 21]
+    values = {f"{s + 2}x5": (limit + coeff * (1.0 / s) ** order).tolist() for s in spans}
+    result = {"scene": "rotation_single", "unpinned": True, "spans": spans, "values": {"gradient radii": values}}
+    groups = {g["group"]: g for g in study.radii_by_corner(result)}
+    assert set(groups) == {"corner radii, pore angle 0-45 deg", "corner radii, pore angle 45-90 deg",
+                           "corner radii, pore angle 90-180 deg", "side radii next to a corner", "side radii mid-side"}
+    for name, p in (("0-45", 1.0), ("45-90", 1.5), ("90-180", 1.5)):
+        np.testing.assert_allclose(groups[f"corner radii, pore angle {name} deg"]["orders"], [p, p], rtol=1e-6)
+    for name in ("side radii next to a corner", "side radii mid-side"):
+        np.testing.assert_allclose(groups[name]["orders"], [2.0, 2.0], rtol=1e-6)
+    assert sum(g["radii"] for g in groups.values()) == order.size
+    assert sum(g["share_of_finest_difference"] for g in groups.values()) == pytest.approx(1.0)
+    assert study.radii_by_corner({**result, "values": {}}) is None  # nothing per level: no split
+
+
 def test_error_map_finds_each_regions_order_of_a_manufactured_ladder():
     """experiments/error_map.py's arithmetic: deformed states x_m = X + h_m^p f(X) with one order p1
     within the radius of a segment's end and another p2 elsewhere (h = 1 / spans, spans = control

@@ -218,6 +218,24 @@ def test_projection_keeps_every_cell_convex(scene):
     assert float(jnp.min(design.corner_turns(unprojected))) < 0  # the box alone would have folded a cell
 
 
+def test_pore_corner_angles():
+    """A square pore (every radius 0.5) has 90 deg corners.  Raising one corner radius to 0.7 moves that
+    corner along the cell's diagonal: in a unit cell with its bottom-left node at the origin, the corner
+    goes to (0.15, 0.15) and its two walls leave it towards the next wall points (0.375, 0.25) and
+    (0.25, 0.375) (each 0.5 of the way from the centre to the quarter points of the cell's sides), so the
+    pore's angle there is 90 deg - 2 atan(0.1 / 0.225) = 42.07 deg; the cell's other corners stay 90."""
+    from nma.geometry.design import GridDesign
+
+    design = GridDesign.from_spec(scene_from_config(config.load("scene", "rotation_single")))
+    params = {"radii": jnp.full((len(design.porous), 16), 0.5)}
+    np.testing.assert_allclose(design.pore_corner_angles(params), 90.0, atol=1e-9)
+    cell, side = 10, 2  # the corner of side 2 (top): the cell's top-right node
+    sharp = design.pore_corner_angles({"radii": params["radii"].at[cell, 4 * side].set(0.7)})
+    expected = np.full(sharp.shape, 90.0)
+    expected[cell, side] = 90.0 - 2.0 * np.degrees(np.arctan(0.1 / 0.225))
+    np.testing.assert_allclose(sharp, expected, atol=1e-9)
+
+
 @pytest.mark.parametrize("task, actuations", [("translation", [[3.0, -1.0], [-2.0, -3.5]]),
                                               ("rotation_double", [[2.5, -1.0], [-1.5, 2.0]])])
 def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):
