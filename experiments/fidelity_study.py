@@ -122,6 +122,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
     from nma.geometry.discretise import discretise
+    from nma.geometry.validity import StateChecker
     from nma.schema import scene_from_config
     from nma.mechanics.material import material
     from nma.registry import TASKS
@@ -147,22 +148,27 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
             X = sim.reference_points(geom)
             u, info = sim.equilibrium(X, d, mat)
             out = task.observe(sim, geom, X, u, mat)
-            return task.loss(out, t), (out, info)
+            return task.loss(out, t), (out, info, u)
 
         forward = jax.jit(loss)
         forward_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))
         jax.block_until_ready(forward(geom, ds[0], ts[0]))  # compile both before timing
         jax.block_until_ready(forward_grad(geom, ds[0], ts[0]))
-        t_fwd, t_grad, outs, grads, iters, failed = [], [], [], [], [], []
+        t_fwd, t_grad, outs, grads, iters, failed, nonphysical = [], [], [], [], [], [], []
+        checker = StateChecker(sim.disc, sim.reference_points(geom))
         for i in range(draws):
             t0 = time.perf_counter()
             jax.block_until_ready(forward(geom, ds[i], ts[i]))
             t_fwd.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            (_, (out, info)), (g_geom, g_d) = jax.block_until_ready(forward_grad(geom, ds[i], ts[i]))
+            (_, (out, info, u)), (g_geom, g_d) = jax.block_until_ready(forward_grad(geom, ds[i], ts[i]))
             t_grad.append(time.perf_counter() - t0)
             if int(info.status) != CONVERGED:
                 failed.append({"draw": i, "load_reached": float(info.load), "residual": float(info.residual)})
+            else:  # a converged state that cannot exist (material inverted, walls through each other)
+                state = checker.check(u)
+                if not state.valid:
+                    nonphysical.append({"draw": i, "min_J": state.min_J, "problems": state.problems()})
             iters.append(int(info.iterations))
             outs.append(np.asarray(out).ravel())
             grads.append({**{k: np.asarray(g_geom[k]).ravel() for k in learned}, "actuations": np.asarray(g_d)})
@@ -170,6 +176,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
             "forward_seconds": stats(t_fwd), "forward_grad_seconds": stats(t_grad),
             "newton_iterations": stats(iters), "peak_memory_mb": memory.peak / 2**20,
             "added_memory_mb": (memory.peak - memory.before) / 2**20, "failed_draws": failed,
+            "nonphysical_draws": nonphysical,
             "_outputs": np.array(outs), "_grads": grads}
 
 
@@ -221,6 +228,11 @@ def observed_order(diffs: list[float], spans: list[int]) -> dict:
     return {"differences": diffs, "order": float(p), "reference_error": float(d2 / ((h[1] / h[2]) ** p - 1))}
 
 
+def draws_of(row: dict, keep: list[int]) -> dict:
+    """A measured setting restricted to the draws `keep`."""
+    return {**row, "_outputs": row["_outputs"][keep], "_grads": [row["_grads"][i] for i in keep]}
+
+
 def refinement(levels: list[dict]) -> tuple[dict, dict]:
     """Successive refinement at fixed Gauss points, coarse to fine.  Per quantity: the differences of
     consecutive levels (worst over the draws), the observed order from each three successive levels (the
@@ -257,6 +269,14 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
     if failed:
         raise RuntimeError(f"{scene}: solves failed, no reference check: {failed}")
     result, limits = refinement(levels)
+    # states the solver converged to that cannot exist: their gradients have no continuum limit to converge
+    # to, so the orders are taken again over the draws physical at every level of the ladder
+    nonphysical = {f"{c}x{q}": r["nonphysical_draws"] for (c, q), r in rows.items() if r["nonphysical_draws"]}
+    bad = {d["draw"] for r in levels for d in r["nonphysical_draws"]}
+    physical = [i for i in range(draws) if i not in bad]
+    if bad:
+        result["physical"] = {"draws": physical,
+                              **(refinement([draws_of(r, physical) for r in levels])[0] if physical else {})}
     per_row = {setting: quantities(r) for setting, r in rows.items()}
     reference = per_row[REFERENCE[:2]]
     for name, v in result["quantities"].items():
@@ -270,6 +290,7 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
                           for k, b in against.items()})
             v["error"][f"{c}x{qp}"] = e
     return {"scene": scene, **model, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
+            "nonphysical": nonphysical,
             "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
             "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
             # each level's quantities per draw, for orders component by component (which radius converges slowest)
@@ -362,6 +383,22 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += [f"| {quantity} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
                                             for e in v["error"].values()) + " |"
               for quantity, v in result["quantities"].items() if quantity != "observable"]
+    if result.get("nonphysical"):
+        lines += ["", "States the solver converged to that cannot exist (nma.geometry.validity: material inverted "
+                  "between Gauss points, walls through each other); every order and error above includes them:", ""]
+        lines += [f"- {level}, draw {d['draw']}: {'; '.join(d['problems'])}"
+                  for level, found in result["nonphysical"].items() for d in found]
+    phys = result.get("physical")
+    if phys and phys["draws"]:
+        lines += ["", f"Over the draws physical at every level of the ladder ({len(phys['draws'])} of "
+                  f"{result['draws']}: {', '.join(map(str, phys['draws']))}):", "",
+                  "| quantity | differences between levels | orders | finest level's error (Richardson) |",
+                  "|---|---|---|---|"]
+        lines += [f"| {quantity} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
+                  f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error'])} |"
+                  for quantity, v in phys["quantities"].items()]
+    elif phys:
+        lines += ["", "No draw is physical at every level of the ladder: no order over physical states."]
     by_corner = radii_by_corner(result)
     if by_corner:
         lines += ["", "The radii gradient by where each radius acts (the corner radii by the pore's angle at their "

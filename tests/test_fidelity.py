@@ -342,6 +342,36 @@ def test_refinement_recovers_the_order_and_richardson_limit_of_a_manufactured_se
                                                           "translation_unpinned_graded2.5.convergence.md"]
 
 
+def test_reference_check_names_states_that_cannot_exist_and_takes_orders_over_the_physical_draws(monkeypatch, tmp_path):
+    """A draw whose state is not physical at one level of the ladder (as the solver reports it converged)
+    is named in the report, and the orders are taken again over the draws physical at every level: here
+    draw 0 converges at order 2 and draw 1, the non-physical one, at order 0.5, so over all draws the
+    finest triple's order is near 0.5 and over the physical draw exactly 2."""
+    from experiments import fidelity_study as study
+
+    rng = np.random.default_rng(0)
+    limit, coeff = rng.normal(size=(2, 5)), rng.normal(size=(2, 5))
+    order = np.array([[2.0], [0.5]])
+
+    def measure(scene, setting, draws, **model):
+        c = setting[0]
+        q = limit + coeff * (1.0 / (c - 2)) ** order
+        bad = [{"draw": 1, "min_J": -0.1, "problems": ["material inverted (det F down to -0.1 near (3, 4)) in 2 elements"]}]
+        return {"ctrl_per_patch": c, "quad_points": setting[1], "dofs": 100 * c, "failed_draws": [],
+                "nonphysical_draws": bad if c == 17 else [], "forward_grad_seconds": {"median": 1.0},
+                "_outputs": q[:, :2], "_grads": [{"radii": g} for g in q[:, 2:]]}
+
+    monkeypatch.setattr(study, "measure", measure)
+    monkeypatch.setattr(study, "radii_by_corner", lambda result: None)  # a toy gradient, not the scene's radii
+    result = study.richardson("translation", 2, ladder=(11, 14, 17, 20), checked=[(5, 2)])
+    assert result["nonphysical"] == {"17x5": measure("", (17, 5), 2)["nonphysical_draws"]}
+    assert result["quantities"]["gradient radii"]["orders"][-1] < 1.0
+    assert result["physical"]["draws"] == [0]
+    np.testing.assert_allclose(result["physical"]["quantities"]["gradient radii"]["orders"], [2.0, 2.0], rtol=1e-6)
+    text = study.convergence_report(result, tmp_path)
+    assert "- 17x5, draw 1: material inverted" in text and "(1 of 2: 0)" in text
+
+
 def test_radii_gradient_split_by_corner_finds_each_groups_order():
     """A manufactured radii gradient on the single rotation's study design, whose entries converge at
     order 1 at pore corners sharper than 45 deg, 1.5 at the other corners and 2 along the sides: each
