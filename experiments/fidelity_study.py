@@ -26,7 +26,11 @@ tolerance 1e-12): the order from each three successive levels (the same p twice 
 the asymptotic range, where Richardson's estimate holds), the Richardson limit q* = q17 + (q17 - q14) /
 ((h14/h17)^p - 1) per draw and component, and the error of the settings runs train at (5 x 2: the
 reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against the 14 x 5 reference
-and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.
+and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.  Every state is checked
+(nma.geometry.validity): a converged state that cannot exist (material inverted between Gauss points,
+walls through each other) is named, and the orders are taken again over the draws physical at every
+level.  The radii gradient's convergence is also split by where each radius acts: the corner radii by
+the pore's angle at their corner (the sharper, the more singular the stress there), the side radii.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
 front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json, which
