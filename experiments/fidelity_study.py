@@ -30,7 +30,8 @@ and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.  Every s
 (nma.geometry.validity): a converged state that cannot exist (material inverted between Gauss points,
 walls through each other) is named, and the orders are taken again over the draws physical at every
 level.  The radii gradient's convergence is also split by where each radius acts: the corner radii by
-the pore's angle at their corner (the sharper, the more singular the stress there), the side radii.
+the pore's angle at their corner (the sharper, the more singular the stress there), the side radii next
+to a corner and mid-side.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the Pareto
 front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json, which
@@ -303,16 +304,17 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
             **result}
 
 
-CORNER_BINS = (45.0, 90.0)  # pore corner angles (deg) that split the radii gradient's corner radii
+CORNER_BINS = (45.0, 90.0, 180.0)  # pore corner angles (deg) that split the radii gradient's corner radii
 
 
 def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
     """The radii gradient's convergence split by where each radius acts: the corner radii by the pore's
     angle at their corner (GridDesign.pore_corner_angles, on the study's random design: the sharper the
-    corner, the stronger its stress singularity), the side radii next to a corner and those mid-side.  Per group: its entries' differences
-    between levels (relative to the whole finest gradient's norm, worst over the draws, as `refinement`
-    measures the whole), the orders from each three levels, and its share of the finest difference
-    (squared norms over every draw).  None where the result has no per-level radii gradient."""
+    corner, the stronger its stress singularity; over 180 deg no re-entrant corner), the side radii next
+    to a corner and those mid-side.  Per group: its entries' differences between levels (relative to the
+    whole finest gradient's norm, worst over the draws, as `refinement` measures the whole), the orders
+    from each three levels, and its share of the finest difference (squared norms over every draw).
+    None where the result has no per-level radii gradient."""
     from nma.geometry.bspline import DESIGN_CTRL
     from nma.geometry.design import GridDesign
     from nma.schema import scene_from_config
@@ -327,8 +329,8 @@ def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
     angle = np.repeat(design.pore_corner_angles(geom), per_radius, axis=1).ravel()
     place = np.tile(np.arange(4 * per_radius) % per_radius, len(design.porous))  # 0: a corner, 1 .. along the side
     corner, middle = place == 0, place == per_radius // 2
-    edges = (0.0, *CORNER_BINS, 180.0 + 1e-9)
-    groups = {f"corner radii, pore angle {lo:g}-{min(hi, 180):.0f} deg": corner & (angle >= lo) & (angle < hi)
+    edges = (0.0, *CORNER_BINS, 360.0)
+    groups = {f"corner radii, pore angle {lo:g}-{hi:g} deg": corner & (angle >= lo) & (angle < hi)
               for lo, hi in zip(edges[:-1], edges[1:])}
     groups["side radii next to a corner"] = ~corner & ~middle
     groups["side radii mid-side"] = middle
@@ -591,7 +593,8 @@ def main():
                          "that a smoke run leaves the study's results as they were)")
     ap.add_argument("--data", type=Path, default=ROOT / "nma" / "data" / "fidelity",
                     help="where the measured fronts for fidelity=auto go")
-    ap.add_argument("--replot", action="store_true", help="redraw tables and figures from the JSON files only (with --convergence: the reference check's)")
+    ap.add_argument("--replot", action="store_true",
+                    help="redraw tables and figures from the JSON files only (with --convergence: the reference check's)")
     ap.add_argument("--convergence", action="store_true",
                     help="check the reference: refinement to 17 x 5, Richardson's limit, errors against it")
     ap.add_argument("--unpinned", action="store_true",

@@ -395,8 +395,9 @@ def test_radii_gradient_split_by_corner_finds_each_groups_order():
     result = {"scene": "rotation_single", "unpinned": True, "spans": spans, "values": {"gradient radii": values}}
     groups = {g["group"]: g for g in study.radii_by_corner(result)}
     assert set(groups) == {"corner radii, pore angle 0-45 deg", "corner radii, pore angle 45-90 deg",
-                           "corner radii, pore angle 90-180 deg", "side radii next to a corner", "side radii mid-side"}
-    for name, p in (("0-45", 1.0), ("45-90", 1.5), ("90-180", 1.5)):
+                           "corner radii, pore angle 90-180 deg", "corner radii, pore angle 180-360 deg",
+                           "side radii next to a corner", "side radii mid-side"}
+    for name, p in (("0-45", 1.0), ("45-90", 1.5), ("90-180", 1.5), ("180-360", 1.5)):
         np.testing.assert_allclose(groups[f"corner radii, pore angle {name} deg"]["orders"], [p, p], rtol=1e-6)
     for name in ("side radii next to a corner", "side radii mid-side"):
         np.testing.assert_allclose(groups[name]["orders"], [2.0, 2.0], rtol=1e-6)

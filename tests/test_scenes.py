@@ -223,7 +223,9 @@ def test_pore_corner_angles():
     corner along the cell's diagonal: in a unit cell with its bottom-left node at the origin, the corner
     goes to (0.15, 0.15) and its two walls leave it towards the next wall points (0.375, 0.25) and
     (0.25, 0.375) (each 0.5 of the way from the centre to the quarter points of the cell's sides), so the
-    pore's angle there is 90 deg - 2 atan(0.1 / 0.225) = 42.07 deg; the cell's other corners stay 90."""
+    pore's angle there is 90 deg - 2 atan(0.1 / 0.225) = 42.07 deg; the cell's other corners stay 90.
+    Lowered to 0.3 instead, the corner goes to (0.35, 0.35), inside the line between those wall points:
+    the wall dents into the pore, whose angle there is 90 deg + 2 atan(0.1 / 0.025) = 241.93 deg."""
     from nma.geometry.design import GridDesign
 
     design = GridDesign.from_spec(scene_from_config(config.load("scene", "rotation_single")))
@@ -234,6 +236,9 @@ def test_pore_corner_angles():
     expected = np.full(sharp.shape, 90.0)
     expected[cell, side] = 90.0 - 2.0 * np.degrees(np.arctan(0.1 / 0.225))
     np.testing.assert_allclose(sharp, expected, atol=1e-9)
+    dented = design.pore_corner_angles({"radii": params["radii"].at[cell, 4 * side].set(0.3)})
+    expected[cell, side] = 90.0 + 2.0 * np.degrees(np.arctan(0.1 / 0.025))
+    np.testing.assert_allclose(dented, expected, atol=1e-9)
 
 
 @pytest.mark.parametrize("task, actuations", [("translation", [[3.0, -1.0], [-2.0, -3.5]]),

@@ -143,17 +143,19 @@ class GridDesign:
         return turns(self.node_positions(params)) / turns(jnp.asarray(self.nodes))
 
     def pore_corner_angles(self, params) -> np.ndarray:
-        """(n_porous, 4) the angle inside each cell's pore, in degrees, at the corner where side s's wall
-        begins: the point that corner radius radii[:, 4 s] places.  The walls of neighbouring sides meet
-        there with only C0 continuity, so the material around the corner spans 360 deg minus this angle:
-        a re-entrant corner, whose stress is singular like r^(lambda - 1), lambda from 0.5 (a sharp pore
-        corner: a crack) to 1 (a straight wall) (Williams 1952, J. Appl. Mech. 19, 526)."""
+        """(n_porous, 4) the angle inside each cell's pore, in degrees (0 to 360), at the corner where side
+        s's wall begins: the point that corner radius radii[:, 4 s] places.  The walls of neighbouring
+        sides meet there with only C0 continuity, so the material around the corner spans 360 deg minus
+        this angle: below 180 a re-entrant corner, whose stress is singular like r^(lambda - 1), lambda
+        from 0.5 (a sharp pore corner: a crack) to 1 (a straight wall) (Williams 1952, J. Appl. Mech. 19,
+        526); above 180 the wall dents into the pore."""
         k = DESIGN_CTRL - 1
         walls = np.asarray(self.nets(params))[: 4 * len(self.porous), :, k].reshape(-1, 4, DESIGN_CTRL, 2)
-        along = walls[:, :, 1] - walls[:, :, 0]                      # side s's wall leaving its first corner
-        back = np.roll(walls, 1, axis=1)[:, :, k - 1] - walls[:, :, 0]  # side s-1's wall back from that corner
-        cos = np.sum(along * back, axis=-1) / (np.linalg.norm(along, axis=-1) * np.linalg.norm(back, axis=-1))
-        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        along = walls[:, :, 1] - walls[:, :, 0]                         # side s's wall leaving the corner
+        back = np.roll(walls, 1, axis=1)[:, :, k - 1] - walls[:, :, 0]  # side s-1's wall back from it
+        # the walls run counter-clockwise around the pore: its inside is the turn from `along` to `back`
+        cross = along[..., 0] * back[..., 1] - along[..., 1] * back[..., 0]
+        return np.degrees(np.arctan2(cross, np.sum(along * back, axis=-1))) % 360.0
 
     def project(self, params, previous) -> dict[str, jnp.ndarray]:
         """Clip every parameter into its box; if moved corners would make a cell (nearly) non-convex,
