@@ -220,7 +220,9 @@ def test_projection_keeps_every_cell_convex(scene):
 
 def test_pore_corner_angles():
     """A square pore (every radius 0.5) has 90 deg corners.  Raising one corner radius to 0.7 moves that
-    corner along the cell's diagonal: in a unit cell with its bottom-left node at the origin, the corner
+    corner along the cell's diagonal: in a unit cell with its bottom-left node at the origin (angles do not
+    depend on the cell's size, and by the square's symmetry any corner will do: the test moves the
+    top-right one), the corner
     goes to (0.15, 0.15) and its two walls leave it towards the next wall points (0.375, 0.25) and
     (0.25, 0.375) (each 0.5 of the way from the centre to the quarter points of the cell's sides), so the
     pore's angle there is 90 deg - 2 atan(0.1 / 0.225) = 42.07 deg; the cell's other corners stay 90.
