@@ -508,6 +508,12 @@ def report(result: dict, out: Path) -> None:
                      f"{r['forward_grad_seconds']['min']:.3f} / {r['forward_grad_seconds']['median']:.3f} | "
                      f"{r['peak_memory_mb']:.0f} | {r.get('observable_error', float('nan')):.2e} | "
                      + " | ".join(cells) + f" | {'yes' if on else ''} {mark} |")
+    folded = [(r, d) for r in rows for d in r.get("nonphysical_draws", [])]
+    if folded:
+        lines += ["", "States the solver converged to that cannot exist (nma.geometry.validity); their errors are in "
+                  "the table:", ""]
+        lines += [f"- {r['ctrl_per_patch']} x {r['quad_points']}, tolerance {r['rtol']:g}, draw {d['draw']}: "
+                  f"{'; '.join(d['problems'])}" for r, d in folded]
     conv = result["convergence"]
     if conv:
         fmt = lambda c: (f"differences {c['differences'][0]:.2e} -> {c['differences'][1]:.2e}, observed order "

@@ -372,6 +372,31 @@ def test_reference_check_names_states_that_cannot_exist_and_takes_orders_over_th
     assert "- 17x5, draw 1: material inverted" in text and "(1 of 2: 0)" in text
 
 
+def test_fronts_report_names_the_states_that_cannot_exist(tmp_path):
+    """The fronts study's report lists a setting's states that the solver converged to but that cannot
+    exist (their errors stay in its table), and says nothing of the kind when every state is physical."""
+    from experiments import fidelity_study as study
+
+    def setting(ctrl, quad, seconds, error, nonphysical=()):
+        t = {"min": seconds, "median": seconds}
+        return {"ctrl_per_patch": ctrl, "quad_points": quad, "rtol": study.DEFAULT_RTOL, "dofs": 100 * ctrl,
+                "forward_seconds": t, "forward_grad_seconds": t, "peak_memory_mb": 100.0, "observable_error": error,
+                "gradient": {"radii": {"relative_error": error, "cosine": 1 - error}}, "gradient_error": error,
+                "gradient_cosine": 1 - error, "nonphysical_draws": list(nonphysical)}
+
+    folded = {"draw": 2, "min_J": -0.05, "problems": ["pore at (2.5, 17.5) crosses itself"]}
+    result = {"scene": "translation", "unpinned": False, "draws": 3, "convergence": None,
+              "reference": {"ctrl_per_patch": 14, "quad_points": 5, "rtol": 1e-12, "dofs": 1400,
+                            "forward_grad_seconds": {"median": 5.0}},
+              "settings": [setting(5, 2, 0.1, 0.2, [folded]), setting(8, 2, 0.3, 0.08)]}
+    study.report(result, tmp_path)
+    text = (tmp_path / "translation.md").read_text()
+    assert "cannot exist" in text and "- 5 x 2, tolerance 1e-10, draw 2: pore at (2.5, 17.5) crosses itself" in text
+    result["settings"][0]["nonphysical_draws"] = []
+    study.report(result, tmp_path)
+    assert "cannot exist" not in (tmp_path / "translation.md").read_text()
+
+
 def test_radii_gradient_split_by_corner_finds_each_groups_order():
     """A manufactured radii gradient on the single rotation's study design, whose entries converge at
     order 1 at pore corners sharper than 45 deg, 1.5 at the other corners and 2 along the sides: each
