@@ -109,12 +109,17 @@ def stats(xs) -> dict:
 SPREAD = 0.6  # the random design's radii and corner moves: uniform over this central part of their ranges
 
 
-def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SPREAD):
-    """The study's draws, the same for every setting of a scene: one random design inside the design
-    box (GridDesign.random_params with `spread`), and `draws` actuation vectors uniform in
-    [-d_max/2, d_max/2]."""
+def study_design(design, seed: int = 0, spread: float = SPREAD):
+    """The study's random design inside the design box (GridDesign.random_params with `spread`), and the
+    generator that drew it, to draw the actuations from next."""
     rng = np.random.default_rng(seed)
-    geom = sim.disc.design.random_params(rng, spread)
+    return design.random_params(rng, spread), rng
+
+
+def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SPREAD):
+    """The study's draws, the same for every setting of a scene: one random design (study_design), and
+    `draws` actuation vectors uniform in [-d_max/2, d_max/2]."""
+    geom, rng = study_design(sim.disc.design, seed, spread)
     return geom, rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * d_max
 
 
@@ -323,8 +328,7 @@ def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
     if not values:
         return None
     design = GridDesign.from_spec(scene_from_config(scene_config(result["scene"], result.get("unpinned", False))))
-    # study_draws' design: the first draw of the same generator
-    geom = design.random_params(np.random.default_rng(seed), result.get("spread", SPREAD))
+    geom, _ = study_design(design, seed, result.get("spread", SPREAD))
     per_radius = DESIGN_CTRL - 1  # radii per pore side; the side's first is its corner's
     angle = np.repeat(design.pore_corner_angles(geom), per_radius, axis=1).ravel()
     place = np.tile(np.arange(4 * per_radius) % per_radius, len(design.porous))  # 0: a corner, 1 .. along the side
@@ -359,9 +363,21 @@ def stem(result: dict) -> str:
                    result.get("spread", SPREAD))
 
 
+def nonphysical_lines(said: str, found: list[tuple[str, dict]]) -> list[str]:
+    """A report's list of the states the solver converged to that cannot exist, each (setting, draw
+    record); none where every state is physical."""
+    if not found:
+        return []
+    return ["", "States the solver converged to that cannot exist (nma.geometry.validity: material inverted "
+            f"between Gauss points, walls through each other); {said}:", ""] + [
+        f"- {setting}, draw {d['draw']}: {'; '.join(d['problems'])}" for setting, d in found]
+
+
 def convergence_report(result: dict, out: Path) -> str:
     scene, ladder, name = result["scene"], [s + 2 for s in result["spans"]], stem(result)
     fmt = lambda v: "-" if v is None else f"{v:.3g}"
+    # a quantity's (or a group's) differences between levels and the orders they give, two table cells
+    trend = lambda v: f"{' -> '.join(f'{d:.3g}' for d in v['differences'])} | {', '.join(fmt(o) for o in v['orders'])}"
     ref = f"{REFERENCE[0]}x{REFERENCE[1]}"
     held = ("held by its actuated segments alone (scene.pinned=[])" if result.get("unpinned")
             else "with the paper's pinned corners")
@@ -379,8 +395,7 @@ def convergence_report(result: dict, out: Path) -> str:
              "| quantity | differences between levels | orders | finest level's error (Richardson) | "
              + " | ".join(result["dofs"]) + " |", "|---|---|---|---|" + "---|" * len(result["dofs"])]
     for quantity, v in result["quantities"].items():
-        lines.append(f"| {quantity} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
-                     f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error'])} | "
+        lines.append(f"| {quantity} | {trend(v)} | {fmt(v['finest_error'])} | "
                      + " | ".join(f"{fmt(e['vs_reference'])} / {fmt(e['vs_limit'])}" for e in v["error"].values())
                      + " |")
     lines += ["", "Gradient cosines (worst over the draws), against the reference / against q*:", "",
@@ -389,19 +404,15 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += [f"| {quantity} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
                                             for e in v["error"].values()) + " |"
               for quantity, v in result["quantities"].items() if quantity != "observable"]
-    if result.get("nonphysical"):
-        lines += ["", "States the solver converged to that cannot exist (nma.geometry.validity: material inverted "
-                  "between Gauss points, walls through each other); every order and error above includes them:", ""]
-        lines += [f"- {level}, draw {d['draw']}: {'; '.join(d['problems'])}"
-                  for level, found in result["nonphysical"].items() for d in found]
+    lines += nonphysical_lines("every order and error above includes them",
+                               [(level, d) for level, found in result.get("nonphysical", {}).items() for d in found])
     phys = result.get("physical")
     if phys and phys["draws"]:
         lines += ["", f"Over the draws physical at every level of the ladder ({len(phys['draws'])} of "
                   f"{result['draws']}: {', '.join(map(str, phys['draws']))}):", "",
                   "| quantity | differences between levels | orders | finest level's error (Richardson) |",
                   "|---|---|---|---|"]
-        lines += [f"| {quantity} | {' -> '.join(f'{d:.3g}' for d in v['differences'])} | "
-                  f"{', '.join(fmt(o) for o in v['orders'])} | {fmt(v['finest_error'])} |"
+        lines += [f"| {quantity} | {trend(v)} | {fmt(v['finest_error'])} |"
                   for quantity, v in phys["quantities"].items()]
     elif phys:
         lines += ["", "No draw is physical at every level of the ladder: no order over physical states."]
@@ -412,8 +423,7 @@ def convergence_report(result: dict, out: Path) -> str:
                   "relative to the whole finest gradient:", "",
                   "| radii | how many | differences between levels | orders | share of the finest difference |",
                   "|---|---|---|---|---|"]
-        lines += [f"| {g['group']} | {g['radii']} | {' -> '.join(f'{d:.3g}' for d in g['differences'])} | "
-                  f"{', '.join(fmt(o) for o in g['orders'])} | {g['share_of_finest_difference']:.2f} |"
+        lines += [f"| {g['group']} | {g['radii']} | {trend(g)} | {g['share_of_finest_difference']:.2f} |"
                   for g in by_corner]
     lines += ["", "| setting | dofs | forward + gradient s (median) |", "|---|---|---|"]
     lines += [f"| {k} | {result['dofs'][k]} | {t['median']:.3g} |" for k, t in result["forward_grad_seconds"].items()]
@@ -508,12 +518,9 @@ def report(result: dict, out: Path) -> None:
                      f"{r['forward_grad_seconds']['min']:.3f} / {r['forward_grad_seconds']['median']:.3f} | "
                      f"{r['peak_memory_mb']:.0f} | {r.get('observable_error', float('nan')):.2e} | "
                      + " | ".join(cells) + f" | {'yes' if on else ''} {mark} |")
-    folded = [(r, d) for r in rows for d in r.get("nonphysical_draws", [])]
-    if folded:
-        lines += ["", "States the solver converged to that cannot exist (nma.geometry.validity); their errors are in "
-                  "the table:", ""]
-        lines += [f"- {r['ctrl_per_patch']} x {r['quad_points']}, tolerance {r['rtol']:g}, draw {d['draw']}: "
-                  f"{'; '.join(d['problems'])}" for r, d in folded]
+    lines += nonphysical_lines("their errors are in the table",
+                               [(f"{r['ctrl_per_patch']} x {r['quad_points']}, tolerance {r['rtol']:g}", d)
+                                for r in rows for d in r.get("nonphysical_draws", [])])
     conv = result["convergence"]
     if conv:
         fmt = lambda c: (f"differences {c['differences'][0]:.2e} -> {c['differences'][1]:.2e}, observed order "
