@@ -107,6 +107,7 @@ def stats(xs) -> dict:
 
 
 SPREAD = 0.6  # the random design's radii and corner moves: uniform over this central part of their ranges
+ACTUATION = 0.5  # the actuations: uniform in [-ACTUATION d_max, ACTUATION d_max]
 
 
 def study_design(design, seed: int = 0, spread: float = SPREAD):
@@ -116,18 +117,21 @@ def study_design(design, seed: int = 0, spread: float = SPREAD):
     return design.random_params(rng, spread), rng
 
 
-def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SPREAD):
+def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SPREAD,
+                actuation: float = ACTUATION):
     """The study's draws, the same for every setting of a scene: one random design (study_design), and
-    `draws` actuation vectors uniform in [-d_max/2, d_max/2]."""
+    `draws` actuation vectors uniform in [-actuation d_max, actuation d_max] (a smaller `actuation` gives
+    the same directions, shorter)."""
     geom, rng = study_design(sim.disc.design, seed, spread)
-    return geom, rng.uniform(-0.5, 0.5, (draws, sim.n_actuations)) * d_max
+    return geom, rng.uniform(-actuation, actuation, (draws, sim.n_actuations)) * d_max
 
 
 def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False,
-            spread: float = SPREAD) -> dict:
+            spread: float = SPREAD, actuation: float = ACTUATION) -> dict:
     """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws, with
     knots graded by `grading` (fidelity.grading), the scene's pinned points removed where `unpinned`
-    (its well-posed variant: the actuated segments hold it), the random design drawn with `spread`."""
+    (its well-posed variant: the actuated segments hold it), the random design drawn with `spread`, the
+    actuations with `actuation` (study_draws)."""
     import jax
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
@@ -149,7 +153,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading if ctrl > 5 else 1.0)),
                         "auto", NewtonOptions(rtol=rtol, element_bound=False))
         task = TASKS.get(scene)(build(TASK_SCHEMAS[scene], config.load("task", scene)), sim)
-        geom, ds = study_draws(sim, task.d_max, draws, seed, spread)
+        geom, ds = study_draws(sim, task.d_max, draws, seed, spread, actuation)
         learned = [k for k in geom if k not in task.frozen_geometry]
         ts = task.sample(jax.random.PRNGKey(seed), draws)
         mat = material(0.07, 0.3)
@@ -264,11 +268,11 @@ def refinement(levels: list[dict]) -> tuple[dict, dict]:
 
 
 def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: float = 1.0,
-               unpinned: bool = False, spread: float = SPREAD) -> dict:
+               unpinned: bool = False, spread: float = SPREAD, actuation: float = ACTUATION) -> dict:
     """The reference check: refinement one level past the reference, the Richardson limit, and the error
     of the settings runs train at against the reference and against that limit (worst over the draws);
-    every level with `grading`, `unpinned` and `spread` (see measure)."""
-    model = {"grading": grading, "unpinned": unpinned, "spread": spread}
+    every level with `grading`, `unpinned`, `spread` and `actuation` (see measure)."""
+    model = {"grading": grading, "unpinned": unpinned, "spread": spread, "actuation": actuation}
     levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws, **model) for c in ladder]
     for r in levels:
         print(f"{scene}: {r['ctrl_per_patch']}x{r['quad_points']}: {r['dofs']} dofs, forward+gradient "
@@ -352,15 +356,18 @@ def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
     return rows
 
 
-def variant(scene: str, grading: float = 1.0, unpinned: bool = False, spread: float = SPREAD) -> str:
-    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`, `_spread<s>`."""
+def variant(scene: str, grading: float = 1.0, unpinned: bool = False, spread: float = SPREAD,
+            actuation: float = ACTUATION) -> str:
+    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`, `_spread<s>`,
+    `_actuation<a>`."""
     return (scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
-            + (f"_spread{spread:g}" if spread != SPREAD else ""))
+            + (f"_spread{spread:g}" if spread != SPREAD else "")
+            + (f"_actuation{actuation:g}" if actuation != ACTUATION else ""))
 
 
 def stem(result: dict) -> str:
     return variant(result["scene"], result.get("grading", 1.0), result.get("unpinned", False),
-                   result.get("spread", SPREAD))
+                   result.get("spread", SPREAD), result.get("actuation", ACTUATION))
 
 
 def nonphysical_lines(said: str, found: list[tuple[str, dict]]) -> list[str]:
@@ -385,6 +392,8 @@ def convergence_report(result: dict, out: Path) -> str:
              if result.get("grading", 1.0) != 1.0 else "uniform knots")
     design = ("" if result.get("spread", SPREAD) == SPREAD
               else f", random design's radii over the central {result['spread']:g} of their range")
+    design += ("" if result.get("actuation", ACTUATION) == ACTUATION
+               else f", actuations within +-{result['actuation']:g} d_max")
     lines = [f"# Fidelity study, reference check: {scene}, {held}, {knots}{design}", "",
              f"Successive refinement {' -> '.join(map(str, ladder))} control points per patch at "
              f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} draws.  "
@@ -591,7 +600,7 @@ def child(args) -> None:
 
     configure_jax()
     result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned,
-                         spread=args.spread)
+                         spread=args.spread, actuation=args.actuation)
               if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned))
     Path(args.result).write_text(json.dumps(result))
 
@@ -620,14 +629,20 @@ def main():
     ap.add_argument("--spread", type=float, default=SPREAD,
                     help="--convergence: the random design's radii (and corner moves) uniform over this central part "
                          f"of their ranges (default {SPREAD}; smaller: rounder pores, blunter corners)")
+    ap.add_argument("--actuation", type=float, default=ACTUATION,
+                    help="--convergence: the actuations uniform in [-a d_max, a d_max] (default "
+                         f"{ACTUATION:g}; smaller: the same directions, shorter, states further from folding)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if not 0.0 < args.spread <= 1.0:
         ap.error(f"--spread must be in (0, 1] (the central part of each range), not {args.spread:g}")
-    if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER) or args.spread != SPREAD):
-        ap.error("--grading, --ladder and --spread belong to --convergence (the study's fronts, which fidelity=auto "
-                 "reads, are measured with uniform knots on the default random design)")
+    if not 0.0 < args.actuation <= 1.0:
+        ap.error(f"--actuation must be in (0, 1] (a fraction of the task's d_max), not {args.actuation:g}")
+    if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER) or args.spread != SPREAD
+                                 or args.actuation != ACTUATION):
+        ap.error("--grading, --ladder, --spread and --actuation belong to --convergence (the study's fronts, which "
+                 "fidelity=auto reads, are measured with uniform knots on the default random draws)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
     if args.child:
@@ -637,7 +652,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     unchecked = []  # scenes whose reference check failed (a level's solve did not converge: said above)
     for scene in args.scenes:
-        name = variant(scene, args.grading, args.unpinned, args.spread)
+        name = variant(scene, args.grading, args.unpinned, args.spread, args.actuation)
         if args.replot and args.convergence:
             if (args.out / f"{name}.convergence.json").exists():
                 convergence_report(json.loads((args.out / f"{name}.convergence.json").read_text()), args.out)
@@ -651,6 +666,7 @@ def main():
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
                *(["--convergence", "--grading", str(args.grading), "--spread", str(args.spread),
+                  "--actuation", str(args.actuation),
                   "--ladder", *map(str, args.ladder)]
                  if args.convergence else []),
                *(["--unpinned"] if args.unpinned else [])]

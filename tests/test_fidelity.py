@@ -273,6 +273,30 @@ def test_reference_check_on_a_blunter_random_design(monkeypatch, tmp_path):
         study.main()
     assert not list(tmp_path.iterdir())
 
+def test_reference_check_at_shorter_actuations(monkeypatch, tmp_path):
+    """--actuation draws the same design and the same actuation directions, shorter (uniform in
+    [-a d_max, a d_max]; the default 0.5 is the study's own draws), names its report for it, and an
+    actuation outside (0, 1] is refused before any work."""
+    from experiments import fidelity_study as study
+    from nma.geometry.design import make_design
+    from nma.schema import scene_from_config
+
+    class Sim:  # what study_draws reads of a simulator
+        disc = type("Disc", (), {"design": make_design(scene_from_config(config.load("scene", "shape_matching")))})()
+        n_actuations = 12
+
+    (geom, d), (same_geom, d_half) = (study.study_draws(Sim, 3.0, 2, actuation=a) for a in (0.5, 0.25))
+    np.testing.assert_array_equal(np.asarray(same_geom["radii"]), np.asarray(geom["radii"]))
+    np.testing.assert_allclose(d_half, d / 2, atol=1e-12)
+    assert np.abs(d).max() <= 1.5 and np.abs(d).max() > 1.0  # 24 draws uniform in [-1.5, 1.5]
+    assert study.variant("shape_matching", 3.0, True, actuation=0.25) == "shape_matching_unpinned_graded3_actuation0.25"
+    for bad in ("0", "1.5"):
+        monkeypatch.setattr("sys.argv", ["fidelity_study.py", "--convergence", "--actuation", bad, "--out", str(tmp_path)])
+        with pytest.raises(SystemExit):
+            study.main()
+    assert not list(tmp_path.iterdir())
+
+
 
 def test_a_scene_whose_reference_check_fails_does_not_stop_the_others(monkeypatch, tmp_path):
     """make study-wellposed checks every scene in turn: one whose finer levels do not solve (its child
