@@ -121,7 +121,9 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
         unstable = sim.negative_eigenvalues(X, d, material(E, nu), u) if status == CONVERGED else None
         # a converged state may not be a physical object (material inverted between Gauss points, a
         # wall through a wall): nma/geometry/validity.py
-        state = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if status == CONVERGED else None
+        # a stopped solve returns the last equilibrium it reached: its walls' compression is reported too
+        checked = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if finite else None
+        state = checked if status == CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
                         "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
                         "inverts": status == INVERTS,
@@ -131,7 +133,11 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
                         "seconds": seconds, "finite": finite, "negative_eigenvalues": unstable,
                         "valid": None if state is None else state.valid,
                         "min_J": None if state is None else state.min_J,
-                        "problems": None if state is None else state.problems()})
+                        "problems": None if state is None else state.problems(),
+                        # how far the walls are compressed along themselves (an incompressible
+                        # surface creases below 0.65)
+                        "min_boundary_stretch": None if checked is None else checked.min_boundary_stretch,
+                        "min_boundary_stretch_at": None if checked is None else checked.min_boundary_stretch_at})
         r = records[-1]
         print(f"{scene:16s} {gname[:28]:28s} nu={nu:<6} d={np.round(d_max * s, 1).tolist()}: "
               f"{'ok' if r['converged'] else ('STOPPED (inverts)' if r['inverts'] else 'FAILED') + ' at load ' + format(r['load_reached'], '.3f')} "
@@ -144,6 +150,12 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
             "max_iters": sim.options.max_iters,
             "contact": contact, "formulation": formulation, "inversion_barrier": inversion_barrier,
             "records": records}
+
+
+def _stats(values) -> dict | None:
+    """Smallest and median of the values known (None: none known)."""
+    known = [v for v in values if v is not None]
+    return {"min": float(np.min(known)), "median": float(np.median(known)), "n": len(known)} if known else None
 
 
 def summarise(result: dict, out: Path) -> None:
@@ -178,6 +190,10 @@ def summarise(result: dict, out: Path) -> None:
                          # older maps (before the validity check) have no "valid" field: None
                          "invalid": (sum(r.get("valid") is False for r in recs)
                                      if any("valid" in r for r in recs) else None),
+                         # older maps have no "min_boundary_stretch": None
+                         "converged_min_boundary_stretch": _stats([r.get("min_boundary_stretch") for r in recs
+                                                                   if r["converged"]]),
+                         "failed_min_boundary_stretch": _stats([r.get("min_boundary_stretch") for r in failed]),
                          "median_converged_seconds": float(conv_time),
                          "median_failed_seconds": float(np.median([r["seconds"] for r in failed])) if failed else None,
                          "failed_over_converged_same_nu": (float(np.max([r["seconds"] / conv_at[r["nu"]] for r in failed]))
@@ -199,17 +215,26 @@ def summarise(result: dict, out: Path) -> None:
              f"{s['saddles']} converged states are saddles (negative eigenvalues of the Hessian: unstable "
              f"equilibria, e.g. a symmetric path past a buckling point)."
              + ("" if s["invalid"] is None else f" {s['invalid']} converged states are not physical objects "
-                "(material inverted somewhere, or a boundary curve through itself or another).") + "",
+                "(material inverted somewhere, or a boundary curve through itself or another).")
+             + "".join(f" The {which} states' boundaries are compressed along themselves to a stretch of "
+                       f"{v['min']:.3f} at least, {v['median']:.3f} in the median state."
+                       for which, v in (("converged", s["converged_min_boundary_stretch"]),
+                                        ("failed solves' last", s["failed_min_boundary_stretch"])) if v),
              "",
              "| design | " + " | ".join(f"nu {nu}" for nu in nus) + " |", "|---|" + "---|" * len(nus)]
     for i, g in enumerate(geoms):
         lines.append(f"| {g} | " + " | ".join(f"{frac[i, j]:.0%}" for j in range(len(nus))) + " |")
     if failed:
-        lines += ["", "Failures:", "", "| design | nu | d | status | load reached | residual | iterations | s |",
-                  "|---|---|---|---|---|---|---|---|"]
+        stretch = lambda r: ("-" if r.get("min_boundary_stretch") is None  # noqa: E731  (older maps)
+                             else f"{r['min_boundary_stretch']:.3f}")
+        lines += ["", "Failures (boundary stretch: the smallest stretch of a boundary curve along itself in the last "
+                  "equilibrium reached; an incompressible neo-Hookean surface creases below 0.65):", "",
+                  "| design | nu | d | status | load reached | residual | iterations | s | boundary stretch |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for r in failed:
             lines.append(f"| {r['design']} | {r['nu']} | {np.round(r['d'], 2).tolist()} | {r['status']} | "
-                         f"{r['load_reached']:.3f} | {r['residual']:.2e} | {r['iterations']} | {r['seconds']:.2f} |")
+                         f"{r['load_reached']:.3f} | {r['residual']:.2e} | {r['iterations']} | {r['seconds']:.2f} | "
+                         f"{stretch(r)} |")
     (out / f"{result['scene']}.md").write_text("\n".join(lines) + "\n")
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 1.2 + 0.6 * len(geoms)), sharey=True)

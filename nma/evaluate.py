@@ -61,7 +61,8 @@ def evaluate_at(settings, run: Path, fidelity, solver, contact=None, eval_subset
     return {"fidelity": fidelity_record(trainer.sim.disc, fidelity),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
             "failed_samples": ev["failed_samples"], "stopped_inverting": ev["stopped_inverting"],
-            **{k: ev[k] for k in ("invalid_states", "checked_states", "min_J", "min_gap", "invalid_samples")},
+            **{k: ev[k] for k in ("invalid_states", "checked_states", "min_J", "min_gap", "min_boundary_stretch",
+                               "invalid_samples")},
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
 
 

@@ -8,7 +8,7 @@ import pytest
 from nma import config
 from nma.geometry.discretise import discretise
 from nma.schema import scene_from_config
-from nma.geometry.validity import StateChecker
+from nma.geometry.validity import StateChecker, summarise
 from nma.schema import Fidelity
 from nma.mechanics.energy import deformation_gradient, quadrature
 from nma.mechanics.material import det2
@@ -41,6 +41,22 @@ def test_the_rest_state_is_valid(scene):
     # at rest the narrowest wall is between the outer boundary and a pore: half a cell less a pore's
     # half-width, 2.5 - 0.5 * 2.5 (radii 0.5)
     assert rest.min_gap == pytest.approx(1.25, rel=1e-3) and "outer boundary" in rest.min_gap_between
+
+
+def test_the_boundary_stretch_is_measured_and_is_not_a_check(scene):
+    """The boundary's smallest stretch along itself: 1 at rest; under u = (a - 1) x in x alone a chord at
+    angle t to the x axis stretches by sqrt(a^2 cos^2 t + sin^2 t), smallest (a) where the boundary runs
+    along x, e.g. the outer boundary's bottom edge.  Compressed to half its length the material is still
+    an object: the state stays valid."""
+    disc, X, checker = scene
+    assert checker.check(np.zeros_like(X)).min_boundary_stretch == pytest.approx(1.0)
+    a = 0.5
+    u = np.stack([(a - 1.0) * X[:, 0], np.zeros(len(X))], axis=1)
+    v = checker.check(u)
+    assert v.valid and v.min_boundary_stretch == pytest.approx(a, abs=1e-12)
+    assert v.min_boundary_stretch_at[1] == pytest.approx(0.0) or v.min_boundary_stretch_at[1] == pytest.approx(25.0)
+    # metrics.json carries the smallest over the states checked (None: a failed solve)
+    assert summarise([checker.check(np.zeros_like(X)), v, None])["min_boundary_stretch"] == pytest.approx(a)
 
 
 def test_a_wall_slid_through_its_pore_is_invalid_although_det_f_is_positive_everywhere(scene):

@@ -16,6 +16,13 @@ them, and the model has no contact, so a pore's walls can pass through each othe
   sign), and the smallest gap between two distinct curves.  The polylines' chords are within
   h^2 |x''| / (8 per_span^2) of the curves (h: a span's parameter length), far below a wall's width at
   the default per_span.
+
+Reported beside the checks, not part of them: the boundary's smallest stretch along itself (a chord's
+deformed over its reference length).  A compressed wall is still an object, but an incompressible
+neo-Hookean solid's surface under plane-strain compression creases (folds onto itself) below a stretch
+of 0.65 (Hong, Zhao & Suo 2009, Appl. Phys. Lett. 95, 111901), which a model that leaves out a wall's
+contact with itself near itself cannot do: there a nearly incompressible material may not do what the
+model says.
 """
 from __future__ import annotations
 
@@ -94,6 +101,8 @@ class Validity:
     inside_out: list = field(default_factory=list)      # pores whose enclosed area changed sign
     min_gap: float = float("inf")     # smallest distance between two distinct boundary curves
     min_gap_between: list = field(default_factory=list)
+    min_boundary_stretch: float = 1.0   # smallest stretch of a boundary curve along itself (not a check)
+    min_boundary_stretch_at: list = field(default_factory=list)  # where: the chord's reference midpoint
 
     def problems(self) -> list[str]:
         """What is wrong, in words (empty for a valid state)."""
@@ -120,6 +129,9 @@ class StateChecker:
         self.names = ["outer boundary"] + ["pore at ({:.3g}, {:.3g})".format(*line.mean(axis=0))
                                            for line in self._polylines(self.X)[1:]]
         self.area_signs = np.sign(self._areas(self.X))
+        self.ref_lines = [np.concatenate([p, p[:1]]) for p in self._polylines(self.X)]  # closed
+        self.ref_chords = np.concatenate([np.linalg.norm(np.diff(p, axis=0), axis=1) for p in self.ref_lines])
+        self.ref_midpoints = np.concatenate([0.5 * (p[1:] + p[:-1]) for p in self.ref_lines])
         self.ref_dets = _jacobian_dets(disc, self.X)  # > 0 wherever the reference is a valid map
         self.centres = _element_centres(disc, self.X)
         # gaps are looked for between curves whose boxes are this close: half a pore's size, so that a
@@ -218,7 +230,12 @@ class StateChecker:
         s, a, b = np.nonzero(near)
         dist = shapely.distance(rings[s, a], rings[s, b])
         signs = np.sign(self._areas(x))
-        out = {"self_crossing": [], "crossing": [], "inside_out": [], "min_gap": [], "min_gap_between": []}
+        chords = np.concatenate([np.linalg.norm(np.diff(p, axis=1), axis=-1) for p in lines], axis=1)
+        stretch = chords / self.ref_chords
+        shortest = np.argmin(stretch, axis=1)
+        out = {"self_crossing": [], "crossing": [], "inside_out": [], "min_gap": [], "min_gap_between": [],
+               "min_boundary_stretch": stretch[np.arange(n), shortest].tolist(),
+               "min_boundary_stretch_at": self.ref_midpoints[shortest].tolist()}
         for k in range(n):
             mine = s == k
             d, pa, pb = dist[mine], a[mine], b[mine]
@@ -233,11 +250,13 @@ class StateChecker:
 
 def summarise(records: list[Validity | None]) -> dict:
     """The numbers metrics.json and the logs carry for a set of states (None: a solve that failed):
-    how many were checked and not valid, the smallest det F and the smallest gap (None if unknown)."""
+    how many were checked and not valid, the smallest det F, the smallest gap and the boundary's smallest
+    stretch along itself (None if unknown)."""
     done = [r for r in records if r is not None]
     finite = lambda values: min((v for v in values if np.isfinite(v)), default=None)  # noqa: E731
     return {"invalid_states": sum(not r.valid for r in done), "checked_states": len(done),
-            "min_J": finite(r.min_J for r in done), "min_gap": finite(r.min_gap for r in done)}
+            "min_J": finite(r.min_J for r in done), "min_gap": finite(r.min_gap for r in done),
+            "min_boundary_stretch": finite(r.min_boundary_stretch for r in done)}
 
 
 def describe(summary: dict, invalid: dict, contact: bool = False, limit: int = 3) -> str:
