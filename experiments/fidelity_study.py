@@ -279,18 +279,25 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
               f"{r['forward_grad_seconds']['median']:.2f} s", flush=True)
     rows = {(r["ctrl_per_patch"], r["quad_points"]): r for r in levels}
     rows.update({s: measure(scene, (*s, DEFAULT_RTOL), draws, **model) for s in checked})
+    # a solve that stopped short has no answer to compare: its draw is left out of every level (hours of
+    # the other draws' solves are kept), and only where no draw solves everywhere is there no check
     failed = {f"{c}x{q}": r["failed_draws"] for (c, q), r in rows.items() if r["failed_draws"]}
-    if failed:
-        raise RuntimeError(f"{scene}: solves failed, no reference check: {failed}")
+    unsolved = {d["draw"] for found in failed.values() for d in found}
+    solved = [i for i in range(draws) if i not in unsolved]
+    if not solved:
+        raise RuntimeError(f"{scene}: no draw solves at every level, no reference check: {failed}")
+    if unsolved:
+        rows = {k: draws_of(r, solved) for k, r in rows.items()}
+        levels = [rows[(c, REFERENCE[1])] for c in ladder]
     result, limits = refinement(levels)
     # states the solver converged to that cannot exist: their gradients have no continuum limit to converge
     # to, so the orders are taken again over the draws physical at every level of the ladder
     nonphysical = {f"{c}x{q}": r["nonphysical_draws"] for (c, q), r in rows.items() if r["nonphysical_draws"]}
     bad = {d["draw"] for r in levels for d in r["nonphysical_draws"]}
-    physical = [i for i in range(draws) if i not in bad]
-    if bad:
-        result["physical"] = {"draws": physical,
-                              **(refinement([draws_of(r, physical) for r in levels])[0] if physical else {})}
+    physical = [i for i in solved if i not in bad]
+    if bad - unsolved:
+        result["physical"] = {"draws": physical, **(refinement([draws_of(r, [solved.index(i) for i in physical])
+                                                                for r in levels])[0] if physical else {})}
     per_row = {setting: quantities(r) for setting, r in rows.items()}
     reference = per_row[REFERENCE[:2]]
     for name, v in result["quantities"].items():
@@ -304,7 +311,7 @@ def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: 
                           for k, b in against.items()})
             v["error"][f"{c}x{qp}"] = e
     return {"scene": scene, **model, "draws": draws, "quad_points": REFERENCE[1], "machine": {"cpus": os.cpu_count()},
-            "nonphysical": nonphysical,
+            "nonphysical": nonphysical, "failed": failed, "solved_draws": solved,
             "dofs": {f"{c}x{q}": r["dofs"] for (c, q), r in rows.items()},
             "forward_grad_seconds": {f"{c}x{q}": r["forward_grad_seconds"] for (c, q), r in rows.items()},
             # each level's quantities per draw, for orders component by component (which radius converges slowest)
@@ -413,8 +420,15 @@ def convergence_report(result: dict, out: Path) -> str:
     lines += [f"| {quantity} | " + " | ".join(f"{cos(e['cosine_vs_reference'])} / {cos(e['cosine_vs_limit'])}"
                                             for e in v["error"].values()) + " |"
               for quantity, v in result["quantities"].items() if quantity != "observable"]
+    if result.get("failed"):
+        lines += ["", "Draws whose solve stopped short at some level, left out of every level above (the solver's "
+                  f"own words; {len(result['solved_draws'])} of {result['draws']} draws kept: "
+                  f"{', '.join(map(str, result['solved_draws']))}):", ""]
+        lines += [f"- {level}, draw {d['draw']}: load reached {d['load_reached']:.3f}, residual {d['residual']:.3g}"
+                  for level, found in result["failed"].items() for d in found]
     lines += nonphysical_lines("every order and error above includes them",
-                               [(level, d) for level, found in result.get("nonphysical", {}).items() for d in found])
+                               [(level, d) for level, found in result.get("nonphysical", {}).items() for d in found
+                                if d["draw"] in result.get("solved_draws", range(result["draws"]))])
     phys = result.get("physical")
     if phys and phys["draws"]:
         lines += ["", f"Over the draws physical at every level of the ladder ({len(phys['draws'])} of "

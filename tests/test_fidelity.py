@@ -396,6 +396,44 @@ def test_reference_check_names_states_that_cannot_exist_and_takes_orders_over_th
     assert "- 17x5, draw 1: material inverted" in text and "(1 of 2: 0)" in text
 
 
+def test_reference_check_leaves_out_a_draw_whose_solve_stops_short(monkeypatch, tmp_path):
+    """A draw whose solve stops short at one level (the solver says so) has no answer to compare: it is
+    left out of every level, and the check goes on over the others, the report naming it (here draw 2
+    fails at 20 x 5, draw 1 folds at 17 x 5, draw 0 converges at order 2); where no draw solves at every
+    level there is no check, and the error says which solves stopped."""
+    from experiments import fidelity_study as study
+
+    rng = np.random.default_rng(1)
+    limit, coeff = rng.normal(size=(3, 5)), rng.normal(size=(3, 5))
+    order = np.array([[2.0], [0.5], [1.0]])
+    stop = {"draw": 2, "load_reached": 0.79, "residual": 2.5e-3}
+
+    def measure(scene, setting, draws, failing=(2,), **model):
+        c = setting[0]
+        q = limit + coeff * (1.0 / (c - 2)) ** order
+        q[2] = np.nan if c == 20 else q[2]  # what a stopped solve leaves
+        bad = [{"draw": 1, "min_J": -0.1, "problems": ["pore at (2.5, 7.5) crosses itself"]}]
+        return {"ctrl_per_patch": c, "quad_points": setting[1], "dofs": 100 * c,
+                "failed_draws": [{**stop, "draw": i} for i in failing] if c == 20 else [],
+                "nonphysical_draws": bad if c == 17 else [], "forward_grad_seconds": {"median": 1.0},
+                "_outputs": q[:, :2], "_grads": [{"radii": g} for g in q[:, 2:]]}
+
+    monkeypatch.setattr(study, "measure", measure)
+    monkeypatch.setattr(study, "radii_by_corner", lambda result: None)  # a toy gradient, not the scene's radii
+    result = study.richardson("translation", 3, ladder=(11, 14, 17, 20), checked=[(5, 2)])
+    assert result["solved_draws"] == [0, 1] and result["failed"] == {"20x5": [stop]}
+    assert np.all(np.isfinite(result["quantities"]["gradient radii"]["differences"]))
+    assert result["physical"]["draws"] == [0]
+    np.testing.assert_allclose(result["physical"]["quantities"]["gradient radii"]["orders"], [2.0, 2.0], rtol=1e-6)
+    text = study.convergence_report(result, tmp_path)
+    assert "- 20x5, draw 2: load reached 0.790, residual 0.0025" in text and "2 of 3 draws kept: 0, 1" in text
+    assert "- 17x5, draw 1: pore at (2.5, 7.5) crosses itself" in text
+
+    monkeypatch.setattr(study, "measure", lambda *a, **k: measure(*a, failing=(0, 1, 2), **k))
+    with pytest.raises(RuntimeError, match="no draw solves at every level"):
+        study.richardson("translation", 3, ladder=(11, 14, 17, 20), checked=[(5, 2)])
+
+
 def test_fronts_report_names_the_states_that_cannot_exist(tmp_path):
     """The fronts study's report lists a setting's states that the solver converged to but that cannot
     exist (their errors stay in its table), and says nothing of the kind when every state is physical."""
