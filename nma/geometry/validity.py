@@ -126,17 +126,17 @@ class StateChecker:
         self.disc, self.per_span = disc, per_span
         self.X = np.asarray(X, float)
         self.loops = oriented_loops(disc, self.X)
-        self.names = ["outer boundary"] + ["pore at ({:.3g}, {:.3g})".format(*line.mean(axis=0))
-                                           for line in self._polylines(self.X)[1:]]
+        reference = self._polylines(self.X)
+        pores = reference[1:]
+        self.names = ["outer boundary"] + ["pore at ({:.3g}, {:.3g})".format(*line.mean(axis=0)) for line in pores]
         self.area_signs = np.sign(self._areas(self.X))
-        self.ref_lines = [np.concatenate([p, p[:1]]) for p in self._polylines(self.X)]  # closed
-        self.ref_chords = np.concatenate([np.linalg.norm(np.diff(p, axis=0), axis=1) for p in self.ref_lines])
-        self.ref_midpoints = np.concatenate([0.5 * (p[1:] + p[:-1]) for p in self.ref_lines])
+        closed = [np.concatenate([p, p[:1]]) for p in reference]
+        self.ref_chords = np.concatenate([np.linalg.norm(np.diff(p, axis=0), axis=1) for p in closed])
+        self.ref_midpoints = np.concatenate([0.5 * (p[1:] + p[:-1]) for p in closed])
         self.ref_dets = _jacobian_dets(disc, self.X)  # > 0 wherever the reference is a valid map
         self.centres = _element_centres(disc, self.X)
         # gaps are looked for between curves whose boxes are this close: half a pore's size, so that a
         # pore's neighbours across a wall (and diagonally) are always among them
-        pores = self._polylines(self.X)[1:]
         self.margin = 0.5 * float(np.median([np.ptp(p, axis=0).max() for p in pores])) if pores else 0.0
 
     def _polylines(self, x: np.ndarray) -> list[np.ndarray]:
