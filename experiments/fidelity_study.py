@@ -91,14 +91,17 @@ class PeakMemory:
         self.peak = max(self.peak, self.rss())
 
 
-def scene_config(scene: str, unpinned: bool = False) -> dict:
+def scene_config(scene: str, unpinned: bool = False, round_corners: bool = False) -> dict:
     """The scene's config as the study measures it: as shipped, or its well-posed variant (its pinned points
-    removed; the actuated segments hold it)."""
+    removed; the actuated segments hold it), with `round_corners` its pores' walls meeting tangent at the
+    pore corners (scene.round_pore_corners)."""
     from nma import config
 
     spec = config.load("scene", scene)
     if unpinned:
         spec["pinned"] = []
+    if round_corners:
+        spec["round_pore_corners"] = True
     return spec
 
 
@@ -127,11 +130,11 @@ def study_draws(sim, d_max: float, draws: int, seed: int = 0, spread: float = SP
 
 
 def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0, unpinned: bool = False,
-            spread: float = SPREAD, actuation: float = ACTUATION) -> dict:
+            spread: float = SPREAD, actuation: float = ACTUATION, round_corners: bool = False) -> dict:
     """Times, memory, observed outputs and loss gradients of one setting on the scene's fixed draws, with
     knots graded by `grading` (fidelity.grading), the scene's pinned points removed where `unpinned`
-    (its well-posed variant: the actuated segments hold it), the random design drawn with `spread`, the
-    actuations with `actuation` (study_draws)."""
+    (its well-posed variant: the actuated segments hold it), round pore corners where `round_corners`,
+    the random design drawn with `spread`, the actuations with `actuation` (study_draws)."""
     import jax
 
     from nma import config, tasks  # noqa: F401  (declares the tasks)
@@ -147,7 +150,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
 
     ctrl, quad, rtol = setting
     with PeakMemory() as memory:
-        spec = scene_config(scene, unpinned)
+        spec = scene_config(scene, unpinned, round_corners)
         # at 5 control points every side has one span per design span: nothing to grade
         # without Newton's element bound, as the shipped fronts were measured (fidelity=auto reads them)
         sim = Simulator(discretise(scene_from_config(spec), Fidelity(ctrl, quad, grading=grading if ctrl > 5 else 1.0)),
@@ -268,11 +271,13 @@ def refinement(levels: list[dict]) -> tuple[dict, dict]:
 
 
 def richardson(scene: str, draws: int, ladder=LADDER, checked=CHECKED, grading: float = 1.0,
-               unpinned: bool = False, spread: float = SPREAD, actuation: float = ACTUATION) -> dict:
+               unpinned: bool = False, spread: float = SPREAD, actuation: float = ACTUATION,
+               round_corners: bool = False) -> dict:
     """The reference check: refinement one level past the reference, the Richardson limit, and the error
     of the settings runs train at against the reference and against that limit (worst over the draws);
-    every level with `grading`, `unpinned`, `spread` and `actuation` (see measure)."""
-    model = {"grading": grading, "unpinned": unpinned, "spread": spread, "actuation": actuation}
+    every level with `grading`, `unpinned`, `spread`, `actuation` and `round_corners` (see measure)."""
+    model = {"grading": grading, "unpinned": unpinned, "spread": spread, "actuation": actuation,
+             "round_corners": round_corners}
     levels = [measure(scene, (c, REFERENCE[1], REFERENCE[2]), draws, **model) for c in ladder]
     for r in levels:
         print(f"{scene}: {r['ctrl_per_patch']}x{r['quad_points']}: {r['dofs']} dofs, forward+gradient "
@@ -331,19 +336,21 @@ def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
     whole finest gradient's norm, worst over the draws, as `refinement` measures the whole), the orders
     from each three levels, and its share of the finest difference (squared norms over every draw).
     None where the result has no per-level radii gradient."""
-    from nma.geometry.bspline import DESIGN_CTRL
-    from nma.geometry.design import GridDesign
+    from nma.geometry.design import GridDesign, radii_per_side
     from nma.schema import scene_from_config
 
     values = result.get("values", {}).get("gradient radii")
     if not values:
         return None
-    design = GridDesign.from_spec(scene_from_config(scene_config(result["scene"], result.get("unpinned", False))))
+    round_corners = result.get("round_corners", False)
+    design = GridDesign.from_spec(scene_from_config(scene_config(result["scene"], result.get("unpinned", False),
+                                                                 round_corners)))
     geom, _ = study_design(design, seed, result.get("spread", SPREAD))
-    per_radius = DESIGN_CTRL - 1  # radii per pore side; the side's first is its corner's
-    angle = np.repeat(design.pore_corner_angles(geom), per_radius, axis=1).ravel()
-    place = np.tile(np.arange(4 * per_radius) % per_radius, len(design.porous))  # 0: a corner, 1 .. along the side
-    corner, middle = place == 0, place == per_radius // 2
+    per_side = radii_per_side(round_corners)  # the side's first is its corner's, unless the corners are round
+    angle = np.repeat(design.pore_corner_angles(geom), per_side, axis=1).ravel()
+    # 0: a corner, 1 .. 3 along the side
+    place = np.tile(np.arange(4 * per_side) % per_side + round_corners, len(design.porous))
+    corner, middle = place == 0, place == 2
     edges = (0.0, *CORNER_BINS, 360.0)
     groups = {f"corner radii, pore angle {lo:g}-{hi:g} deg": corner & (angle >= lo) & (angle < hi)
               for lo, hi in zip(edges[:-1], edges[1:])}
@@ -364,17 +371,18 @@ def radii_by_corner(result: dict, seed: int = 0) -> list[dict] | None:
 
 
 def variant(scene: str, grading: float = 1.0, unpinned: bool = False, spread: float = SPREAD,
-            actuation: float = ACTUATION) -> str:
-    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_graded<g>`, `_spread<s>`,
-    `_actuation<a>`."""
-    return (scene + "_unpinned" * bool(unpinned) + (f"_graded{grading:g}" if grading != 1.0 else "")
+            actuation: float = ACTUATION, round_corners: bool = False) -> str:
+    """A result's file stem: the scene, `_unpinned` (its well-posed variant), `_round` (round pore corners),
+    `_graded<g>`, `_spread<s>`, `_actuation<a>`."""
+    return (scene + "_unpinned" * bool(unpinned) + "_round" * bool(round_corners)
+            + (f"_graded{grading:g}" if grading != 1.0 else "")
             + (f"_spread{spread:g}" if spread != SPREAD else "")
             + (f"_actuation{actuation:g}" if actuation != ACTUATION else ""))
 
 
 def stem(result: dict) -> str:
     return variant(result["scene"], result.get("grading", 1.0), result.get("unpinned", False),
-                   result.get("spread", SPREAD), result.get("actuation", ACTUATION))
+                   result.get("spread", SPREAD), result.get("actuation", ACTUATION), result.get("round_corners", False))
 
 
 def nonphysical_lines(said: str, found: list[tuple[str, dict]]) -> list[str]:
@@ -397,6 +405,8 @@ def convergence_report(result: dict, out: Path) -> str:
             else "with the paper's pinned corners")
     knots = (f"knots graded towards the patch corners (fidelity.grading={result['grading']:g})"
              if result.get("grading", 1.0) != 1.0 else "uniform knots")
+    if result.get("round_corners"):
+        held += ", round pore corners (scene.round_pore_corners)"
     design = ("" if result.get("spread", SPREAD) == SPREAD
               else f", random design's radii over the central {result['spread']:g} of their range")
     design += ("" if result.get("actuation", ACTUATION) == ACTUATION
@@ -614,7 +624,7 @@ def child(args) -> None:
 
     configure_jax()
     result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned,
-                         spread=args.spread, actuation=args.actuation)
+                         spread=args.spread, actuation=args.actuation, round_corners=args.round_corners)
               if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned))
     Path(args.result).write_text(json.dumps(result))
 
@@ -646,6 +656,9 @@ def main():
     ap.add_argument("--actuation", type=float, default=ACTUATION,
                     help="--convergence: the actuations uniform in [-a d_max, a d_max] (default "
                          f"{ACTUATION:g}; smaller: the same directions, shorter, states further from folding)")
+    ap.add_argument("--round-corners", action="store_true",
+                    help="--convergence with the pores' walls meeting tangent at their corners "
+                         "(scene.round_pore_corners): no re-entrant pore corner")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -654,8 +667,8 @@ def main():
     if not 0.0 < args.actuation <= 1.0:
         ap.error(f"--actuation must be in (0, 1] (a fraction of the task's d_max), not {args.actuation:g}")
     if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER) or args.spread != SPREAD
-                                 or args.actuation != ACTUATION):
-        ap.error("--grading, --ladder, --spread and --actuation belong to --convergence (the study's fronts, which "
+                                 or args.actuation != ACTUATION or args.round_corners):
+        ap.error("--grading, --ladder, --spread, --actuation and --round-corners belong to --convergence (the study's fronts, which "
                  "fidelity=auto reads, are measured with uniform knots on the default random draws)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
@@ -666,7 +679,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     unchecked = []  # scenes whose reference check failed (a level's solve did not converge: said above)
     for scene in args.scenes:
-        name = variant(scene, args.grading, args.unpinned, args.spread, args.actuation)
+        name = variant(scene, args.grading, args.unpinned, args.spread, args.actuation, args.round_corners)
         if args.replot and args.convergence:
             if (args.out / f"{name}.convergence.json").exists():
                 convergence_report(json.loads((args.out / f"{name}.convergence.json").read_text()), args.out)
@@ -680,7 +693,7 @@ def main():
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
                *(["--convergence", "--grading", str(args.grading), "--spread", str(args.spread),
-                  "--actuation", str(args.actuation),
+                  "--actuation", str(args.actuation), *(["--round-corners"] if args.round_corners else []),
                   "--ladder", *map(str, args.ladder)]
                  if args.convergence else []),
                *(["--unpinned"] if args.unpinned else [])]

@@ -106,6 +106,22 @@ def test_gradients_of_the_well_posed_translation_with_graded_knots():
                       ["radii", "actuation", "material"])
 
 
+def test_gradients_of_the_well_posed_shape_matching_with_round_pore_corners():
+    """Shape matching held by its actuated segments alone, its pores' corners round (scene.round_pore_corners:
+    each corner radius derived from its neighbours'), at 8 x 2 with graded knots: the derived corners
+    differentiate with the rest (every cell's radii, the central pore's, the corner moves)."""
+    spec = config.load("scene", "shape_matching")
+    disc = discretise(scene_from_config({**spec, "pinned": [], "round_pore_corners": True}),
+                      Resolution(8, 2, grading=3.0))
+    sim = Simulator(disc, "pardiso", TIGHT)
+    p = sim.init_params()
+    params = {**p, "radii": p["radii"] + 0.05 * jax.random.uniform(jax.random.PRNGKey(1), p["radii"].shape, minval=-1),
+              "corners": 0.5 * jax.random.uniform(jax.random.PRNGKey(2), p["corners"].shape, minval=-1)}
+    d = 1.5 * jax.random.uniform(jax.random.PRNGKey(4), (12,), minval=-1)
+    check_directional(sim, params, d, material(0.07, 0.3), jax.random.PRNGKey(5),
+                      ["radii", "pore_radii", "corners", "actuation"])
+
+
 def test_corner_gradients_rotation_double():
     sim = tight_simulator("rotation_double")
     p = sim.init_params()

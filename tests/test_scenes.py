@@ -243,6 +243,36 @@ def test_pore_corner_angles():
     np.testing.assert_allclose(dented, expected, atol=1e-9)
 
 
+def test_round_pore_corners():
+    """scene.round_pore_corners: 3 design radii per side, each corner's derived so that the walls meet
+    tangent.  A square pore's sides at radius 0.5 put the corner's neighbouring control points at (0.25,
+    -0.5) and (0.5, -0.25) of a cell [-1, 1]^2 (half of the way from the centre to the points a quarter
+    along each side); the chord between them, x - y = 0.75, crosses the diagonal towards the node (1, -1) at
+    radius 0.375.  On a random design every pore corner is 180 deg (no re-entrant corner), and the derived
+    corner radius stays inside the cell."""
+    from nma.geometry.design import GridDesign
+
+    spec = config.load("scene", "shape_matching")
+    design = GridDesign.from_spec(scene_from_config({**spec, "round_pore_corners": True}))
+    p = design.init_params()
+    assert p["radii"].shape == (len(design.porous), 12) and p["pore_radii"].shape == (3 * len(design.central),)
+    square = {**p, "radii": jnp.full_like(p["radii"], 0.5)}
+    nets = np.asarray(design.nets(square))[: 4 * len(design.porous)].reshape(len(design.porous), 4, 5, 5, 2)
+    nodes = design.nodes[design.porous]
+    centre = nodes.mean(axis=1)
+    np.testing.assert_allclose(nets[:, :, 0, -1], centre[:, None] + 0.375 * (nodes - centre[:, None]), atol=1e-12)
+    geom = design.random_params(np.random.default_rng(0), 1.0)
+    np.testing.assert_allclose(design.pore_corner_angles(geom), 180.0, atol=1e-6)
+    nets = np.asarray(design.nets(geom))[: 4 * len(design.porous)].reshape(len(design.porous), 4, 5, 5, 2)
+    moved = np.asarray(design.node_positions(geom))[design.porous]
+    centre = moved.mean(axis=1)
+    radius = (np.linalg.norm(nets[:, :, 0, -1] - centre[:, None], axis=-1)
+              / np.linalg.norm(moved - centre[:, None], axis=-1))
+    assert 0.0 < radius.min() and radius.max() < 1.0
+    sharp = GridDesign.from_spec(scene_from_config(spec))
+    assert np.min(sharp.pore_corner_angles(sharp.random_params(np.random.default_rng(0), 1.0))) < 30.0
+
+
 @pytest.mark.parametrize("task, actuations", [("translation", [[3.0, -1.0], [-2.0, -3.5]]),
                                               ("rotation_double", [[2.5, -1.0], [-1.5, 2.0]])])
 def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):

@@ -2,8 +2,9 @@
 
 Parameters are a dict of arrays, holding only what the scene models:
   radii       (n_porous_cells, 16)   pore radii, 4 per side, corner radius shared by neighbouring sides
+                                     (12, 3 per side, with round pore corners: each corner's is derived)
   corners     (n_movable_nodes, 2)   offsets of the interior grid nodes, inside +-corner_box
-  pore_radii  (4 M,)                 radii of the central pore on its M-gon of ring nodes
+  pore_radii  (4 M,)                 radii of the central pore on its M-gon of ring nodes (3 M: round)
   colours     (P, 5, 5)              colour net per patch (logits; the field is sigmoid of the spline)
 Patch order: porous cells (4 patches each, sides bottom, right, top, left), central pore, solid cells.
 """
@@ -22,19 +23,40 @@ _T = np.linspace(0.0, 1.0, DESIGN_CTRL)  # design net parameters along a side / 
 MIN_TURN = 0.05  # smallest corner turn of a cell, relative to the square grid's, that projection allows
 
 
-def pore_nets(polygon: jnp.ndarray, radii: jnp.ndarray) -> jnp.ndarray:
+def radii_per_side(round_corners: bool) -> int:
+    """Design radii per pore side: the corner's and the side's 3 inner ones; the 3 alone where the corners
+    are round (each corner's radius then follows from its neighbours, see pore_nets)."""
+    return DESIGN_CTRL - 2 if round_corners else DESIGN_CTRL - 1
+
+
+def _round_corner_radii(centroid, outer, inner_sides) -> jnp.ndarray:
+    """(M,) the radius that puts each pore corner on the line between its neighbouring control points (side
+    i-1's last inner one, side i's first), so the walls meet tangent there (G1) instead of at an angle:
+    the corner point centroid + r (node - centroid) on that line."""
+    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    before, after = jnp.roll(inner_sides[:, -1], 1, axis=0), inner_sides[:, 0]
+    chord, ray = after - before, outer[:, 0] - centroid
+    return cross(chord, before - centroid) / cross(chord, ray)
+
+
+def pore_nets(polygon: jnp.ndarray, radii: jnp.ndarray, round_corners: bool = False) -> jnp.ndarray:
     """Nets (M, 5, 5, 2) of the M patches around a pore on a polygon of M nodes (counter-clockwise).
 
     Side i's outer edge runs straight from node i to node i+1; its inner edge is
     centroid + r * (outer - centroid); rows between are linear.  Index [side, along, radial]:
-    radial row 0 is the outer edge, so (along, radial) is positively oriented."""
+    radial row 0 is the outer edge, so (along, radial) is positively oriented.  The corner radius
+    (shared by neighbouring sides) is a design radius, where the walls meet at an angle (a re-entrant
+    corner of the material, whose stress is singular), or with `round_corners` derived so they meet
+    tangent (_round_corner_radii): `radii` then holds the sides' inner radii alone."""
     m = polygon.shape[0]
-    k = DESIGN_CTRL - 1
     nxt = jnp.roll(polygon, -1, axis=0)
     outer = polygon[:, None, :] + _T[None, :, None] * (nxt - polygon)[:, None, :]  # (M, 5, 2)
-    r = radii.reshape(m, k)
-    r_side = jnp.concatenate([r, jnp.roll(r[:, :1], -1, axis=0)], axis=1)  # (M, 5): shared corner radius
     centroid = polygon.mean(axis=0)
+    r = radii.reshape(m, radii_per_side(round_corners))
+    if round_corners:
+        sides = centroid + r[..., None] * (outer[:, 1:-1] - centroid)
+        r = jnp.concatenate([_round_corner_radii(centroid, outer, sides)[:, None], r], axis=1)
+    r_side = jnp.concatenate([r, jnp.roll(r[:, :1], -1, axis=0)], axis=1)  # (M, 5): shared corner radius
     inner = centroid + r_side[..., None] * (outer - centroid)
     return outer[:, :, None, :] + _T[None, None, :, None] * (inner - outer)[:, :, None, :]
 
@@ -84,11 +106,12 @@ class GridDesign:
 
     def init_params(self) -> dict[str, jnp.ndarray]:
         s = self.spec
-        p = {"radii": jnp.full((len(self.porous), 4 * (DESIGN_CTRL - 1)), s.radii_init)}
+        per_side = radii_per_side(s.round_pore_corners)
+        p = {"radii": jnp.full((len(self.porous), 4 * per_side), s.radii_init)}
         if len(self.movable):
             p["corners"] = jnp.zeros((len(self.movable), 2))
         if len(self.central):
-            p["pore_radii"] = jnp.full((len(self.central) * (DESIGN_CTRL - 1),), s.central_radii_init)
+            p["pore_radii"] = jnp.full((len(self.central) * per_side,), s.central_radii_init)
         if s.colours:
             p["colours"] = jnp.zeros((self.n_patches, DESIGN_CTRL, DESIGN_CTRL))
         return p
@@ -148,7 +171,8 @@ class GridDesign:
         sides meet there with only C0 continuity, so the material around the corner spans 360 deg minus
         this angle: below 180 a re-entrant corner, whose stress is singular like r^(lambda - 1), lambda
         from 0.5 (a sharp pore corner: a crack) to 1 (a straight wall) (Williams 1952, J. Appl. Mech. 19,
-        526); above 180 the wall dents into the pore."""
+        526); above 180 the wall dents into the pore.  Round pore corners (scene.round_pore_corners) are
+        180 everywhere: the walls meet tangent."""
         k = DESIGN_CTRL - 1
         walls = np.asarray(self.nets(params))[: 4 * len(self.porous), :, k].reshape(-1, 4, DESIGN_CTRL, 2)
         along = walls[:, :, 1] - walls[:, :, 0]                         # side s's wall leaving the corner
@@ -187,10 +211,11 @@ class GridDesign:
         nodes = self.node_positions(params)
         parts = []
         if len(self.porous):
-            cells = jax.vmap(pore_nets)(nodes[self.porous], params["radii"])
+            round_corners = self.spec.round_pore_corners
+            cells = jax.vmap(lambda q, r: pore_nets(q, r, round_corners))(nodes[self.porous], params["radii"])
             parts.append(cells.reshape(-1, DESIGN_CTRL, DESIGN_CTRL, 2))
         if len(self.central):
-            parts.append(pore_nets(nodes[self.central], params["pore_radii"]))
+            parts.append(pore_nets(nodes[self.central], params["pore_radii"], self.spec.round_pore_corners))
         if len(self.solid):
             parts.append(jax.vmap(_bilinear)(nodes[self.solid]))
         return jnp.concatenate(parts, axis=0)

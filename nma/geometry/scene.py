@@ -57,6 +57,7 @@ class SceneSpec:
     central_radii_init: float
     colours: bool
     supports: tuple[Support, ...] = ()
+    round_pore_corners: bool = False  # walls meet tangent at pore corners (nma.geometry.design.pore_nets)
     # built by scene_from_config from a SceneConfig, whose schema holds the defaults and checks
 
     @property

@@ -123,6 +123,10 @@ class SceneConfig(Schema):
     central_pore: List[Any] = field(default_factory=list)    # ring of grid nodes [[i, j], ...], counter-clockwise
     central_radii_init: float = bounded(0.8, "(0, 1)")
     colours: bool = False
+    # the pore walls meet tangent at the pore corners (each corner's radius derived from its neighbours',
+    # 3 design radii per side), not at an angle: no re-entrant corner, so no singular stress there for
+    # refinement to chase; false: the paper's pores, a radius per corner
+    round_pore_corners: bool = False
     # contact=auto (the commands' default) turns the pores' self-contact on for a scene that says so: one
     # whose pores close under its task's actuations, where without contact they pass through themselves
     contact: bool = False
@@ -159,6 +163,7 @@ class SceneConfig(Schema):
             locked_nodes=tuple((int(i), int(j)) for i, j in self.locked_nodes),
             central_pore=tuple((int(i), int(j)) for i, j in self.central_pore),
             central_radii_init=self.central_radii_init, colours=self.colours,
+            round_pore_corners=self.round_pore_corners,
             supports=tuple(Support((pair(t.segment[0]), pair(t.segment[1])), t.fixed_components())
                            for t in self.supports))
 
