@@ -53,19 +53,27 @@ def _read(path: Path, mtime_ns: int, size: int) -> dict:
     return json.loads(path.read_text())
 
 
-HOLDS = {"pinned": "scene.pinned", "supports": "scene.supports", "groups": "scene.groups (the actuated segments)"}
+HOLDS = {"pinned": "scene.pinned", "supports": "scene.supports", "groups": "scene.groups (the actuated segments)",
+         "round_pore_corners": "scene.round_pore_corners"}
+UNRECORDED = {"round_pore_corners": False}  # what a front that does not record a field was measured with
 
 
 def holds(spec: SceneSpec) -> dict:
     """How a scene is held, as its front records it (JSON's lists and floats, each list sorted, so that
     the same body listed in another order is held the same): its pinned points, supports (segment,
-    fixed components) and actuated segments (actuation, segment, direction)."""
+    fixed components) and actuated segments (actuation, segment, direction); and where its pores' corners
+    are round (they converge faster, so the errors differ), that too."""
     pt = lambda p: [float(p[0]), float(p[1])]  # noqa: E731
     return {"pinned": sorted(pt(p) for p in spec.pinned),
             "supports": sorted([pt(t.segment[0]), pt(t.segment[1]), sorted(int(c) for c in t.components)]
                                for t in spec.supports),
             "groups": sorted([int(g.actuation), pt(g.segment[0]), pt(g.segment[1]), pt(g.direction)]
-                             for g in spec.groups)}
+                             for g in spec.groups),
+            **({"round_pore_corners": True} if spec.round_pore_corners else {})}
+
+
+def _field(held: dict, key: str):
+    return held.get(key, UNRECORDED.get(key))
 
 
 def front_path(scene: str | SceneSpec, data: Path = DATA) -> Path:
@@ -92,13 +100,14 @@ def front_path(scene: str | SceneSpec, data: Path = DATA) -> Path:
         other = _front(p).get("holds")
         if other is None:
             return f"{p.name} records no holds (measured before fronts did: measure it again)"
-        return p.name + ": " + ", ".join(f"{HOLDS[k]}={json.dumps(other[k])}" for k in HOLDS if other[k] != held[k])
+        return p.name + ": " + ", ".join(f"{HOLDS[k]}={json.dumps(_field(other, k))}" for k in HOLDS
+                                         if _field(other, k) != _field(held, k))
 
     raise ConfigError(f"fidelity=auto has no front for scene {name} held as this run holds it: a front's errors "
                       "are of the body held as it was measured, and each front measured for it differs ("
                       + "; ".join(differs(p) for p in paths) + "; this run: "
-                      + ", ".join(f"{HOLDS[k]}={json.dumps(held[k])}" for k in HOLDS
-                                  if any(_front(p).get("holds", {}).get(k) != held[k] for p in paths))
+                      + ", ".join(f"{HOLDS[k]}={json.dumps(_field(held, k))}" for k in HOLDS
+                                  if any(_field(_front(p).get("holds", {}), k) != _field(held, k) for p in paths))
                       + ").  Measure its front with experiments/fidelity_study.py, or choose a preset "
                       "(fidelity=paper, fast, fine)")
 
