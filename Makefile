@@ -3,7 +3,7 @@ PYTHON ?= python3
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
+.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -34,6 +34,9 @@ study-reference:    ## is the fidelity study's reference converged? refinement t
 
 study-wellposed:    ## the well-posed variants (no pins), knots graded 3, refinement 14 -> 26 x 5 -> outputs/studies/fidelity/*_unpinned_graded3.convergence.* (hours: a rotation 35-50 min; shape matching's draw does not solve at 23 and 26 x 5)
 	$(PYTHON) experiments/fidelity_study.py --convergence --unpinned --grading 3 --ladder 14 17 20 23 26 $(STUDY_ARGS)
+
+study-round:        ## the well-posed variants with round pore corners (scene.round_pore_corners), knots graded 3, refinement 11 -> 20 x 5 -> outputs/studies/fidelity/*_unpinned_round_graded3.convergence.* (STUDY_ARGS="--scenes shape_matching --draws 1 --actuation 0.125")
+	$(PYTHON) experiments/fidelity_study.py --convergence --unpinned --round-corners --grading 3 --ladder 11 14 17 20 $(STUDY_ARGS)
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py

@@ -37,7 +37,9 @@ Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against err
 front marked) and the measured front that `fidelity=auto` reads, nma/data/fidelity/<scene>.json, which
 records how the scene was held (its pinned points, supports and actuated segments: auto reads a front only
 for a scene held the same way).  `--unpinned` measures each scene's well-posed variant (scene.pinned=[]):
-<scene>_unpinned.{json,md,png} and the front nma/data/fidelity/<scene>_unpinned.json.
+<scene>_unpinned.{json,md,png} and the front nma/data/fidelity/<scene>_unpinned.json.  `--round-corners`
+measures the scene with its pores' walls meeting tangent at their corners (scene.round_pore_corners):
+<scene>[_unpinned]_round*.{json,md,png}, its front, or with --convergence its reference check.
 """
 from __future__ import annotations
 
@@ -473,17 +475,17 @@ def pareto(rows: list[dict], error: str) -> list[int]:
             if not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for t2, e2 in pts)]
 
 
-def run_scene(scene: str, quick: bool, draws: int, unpinned: bool = False) -> dict:
+def run_scene(scene: str, quick: bool, draws: int, unpinned: bool = False, round_corners: bool = False) -> dict:
     from nma.fidelity import holds
     from nma.schema import scene_from_config
 
     grid, reference = (QUICK_GRID, QUICK_REFERENCE) if quick else (GRID, REFERENCE)
-    ref = measure(scene, reference, draws, unpinned=unpinned)
+    ref = measure(scene, reference, draws, unpinned=unpinned, round_corners=round_corners)
     print(f"{scene}: reference {reference}: {ref['dofs']} dofs, forward+gradient "
           f"{ref['forward_grad_seconds']['median']:.2f} s", flush=True)
     rows = {}
     for setting in sorted(grid, key=lambda s: (s[0], s[1], -s[2])):
-        r = measure(scene, setting, draws, unpinned=unpinned)
+        r = measure(scene, setting, draws, unpinned=unpinned, round_corners=round_corners)
         if not r["failed_draws"]:
             r.update(compare(r, ref))
         rows[setting] = r
@@ -491,7 +493,8 @@ def run_scene(scene: str, quick: bool, draws: int, unpinned: bool = False) -> di
               + (f"gradient error {r['gradient_error']:.2e}, observable error {r['observable_error']:.2e}"
                  if "gradient_error" in r else f"FAILED {r['failed_draws']}"), flush=True)
     ladder = [s for s in ((8, 5, DEFAULT_RTOL), (11, 5, DEFAULT_RTOL)) if s in rows]
-    result = {"scene": scene, "unpinned": unpinned, "holds": holds(scene_from_config(scene_config(scene, unpinned))),
+    held = holds(scene_from_config(scene_config(scene, unpinned, round_corners)))
+    result = {"scene": scene, "unpinned": unpinned, "round_corners": round_corners, "holds": held,
               "draws": draws, "machine": {"cpus": os.cpu_count()},
               "reference": {k: v for k, v in ref.items() if not k.startswith("_")},
               "convergence": refinement([rows[s] for s in ladder] + [ref])[0] if len(ladder) == 2 else None,
@@ -531,7 +534,8 @@ def report(result: dict, out: Path) -> None:
     front = {(r["ctrl_per_patch"], r["quad_points"]) for r in front_of(result) if r["on_front"]}
     groups = list(next(r for r in rows if "gradient" in r)["gradient"])
     lines = [f"# Fidelity study: {scene}" + (", held by its actuated segments alone (scene.pinned=[])"
-                                             if result.get("unpinned") else ""), "",
+                                             if result.get("unpinned") else "")
+             + (", round pore corners (scene.round_pore_corners)" if result.get("round_corners") else ""), "",
              f"Reference: {ref['ctrl_per_patch']} control points per patch, {ref['quad_points']} Gauss points, "
              f"Newton tolerance {ref['rtol']:g} ({ref['dofs']} dofs, forward + gradient "
              f"{ref['forward_grad_seconds']['median']:.2f} s). Times: min / median of {result['draws']} draws, "
@@ -594,7 +598,8 @@ def report(result: dict, out: Path) -> None:
     plt.close(fig)
 
 
-def summary(results: list[dict], out: Path, tolerance: float = 0.1, unpinned: bool = False) -> str:
+def summary(results: list[dict], out: Path, tolerance: float = 0.1, unpinned: bool = False,
+            round_corners: bool = False) -> str:
     """One table over the scenes: the paper's and the fast preset's cost and error, the cheapest
     setting within `tolerance` (what fidelity=auto picks by default), and how well the reference is known."""
     from nma.fidelity import fastest_within
@@ -615,7 +620,7 @@ def summary(results: list[dict], out: Path, tolerance: float = 0.1, unpinned: bo
             + f" | {ref['dofs']}, {ref['forward_grad_seconds']['median']:.3g} | "
             + (f"gradient <= {max(est):.2g} (relative)" if est else "undetermined") + " |")
     text = "\n".join(lines) + "\n"
-    (out / ("summary_unpinned.md" if unpinned else "summary.md")).write_text(text)
+    (out / f"summary{'_unpinned' * unpinned}{'_round' * round_corners}.md").write_text(text)
     return text
 
 
@@ -625,7 +630,7 @@ def child(args) -> None:
     configure_jax()
     result = (richardson(args.scenes[0], args.draws, tuple(args.ladder), grading=args.grading, unpinned=args.unpinned,
                          spread=args.spread, actuation=args.actuation, round_corners=args.round_corners)
-              if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned))
+              if args.convergence else run_scene(args.scenes[0], args.quick, args.draws, args.unpinned, args.round_corners))
     Path(args.result).write_text(json.dumps(result))
 
 
@@ -657,8 +662,8 @@ def main():
                     help="--convergence: the actuations uniform in [-a d_max, a d_max] (default "
                          f"{ACTUATION:g}; smaller: the same directions, shorter, states further from folding)")
     ap.add_argument("--round-corners", action="store_true",
-                    help="--convergence with the pores' walls meeting tangent at their corners "
-                         "(scene.round_pore_corners): no re-entrant pore corner")
+                    help="the pores' walls meeting tangent at their corners (scene.round_pore_corners): no "
+                         "re-entrant pore corner (the front, or with --convergence the reference check)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--result", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -667,8 +672,8 @@ def main():
     if not 0.0 < args.actuation <= 1.0:
         ap.error(f"--actuation must be in (0, 1] (a fraction of the task's d_max), not {args.actuation:g}")
     if not args.convergence and (args.grading != 1.0 or args.ladder != list(LADDER) or args.spread != SPREAD
-                                 or args.actuation != ACTUATION or args.round_corners):
-        ap.error("--grading, --ladder, --spread, --actuation and --round-corners belong to --convergence (the study's fronts, which "
+                                 or args.actuation != ACTUATION):
+        ap.error("--grading, --ladder, --spread and --actuation belong to --convergence (the study's fronts, which "
                  "fidelity=auto reads, are measured with uniform knots on the default random draws)")
     if REFERENCE[0] not in args.ladder or args.ladder != sorted(set(args.ladder)) or len(args.ladder) < 3:
         ap.error(f"--ladder must rise through at least 3 levels, {REFERENCE[0]} (the reference) among them")
@@ -693,10 +698,9 @@ def main():
         cmd = [sys.executable, __file__, "--child", "--scenes", scene, "--draws", str(args.draws),
                "--result", str(result_file), *(["--quick"] if args.quick else []),
                *(["--convergence", "--grading", str(args.grading), "--spread", str(args.spread),
-                  "--actuation", str(args.actuation), *(["--round-corners"] if args.round_corners else []),
-                  "--ladder", *map(str, args.ladder)]
+                  "--actuation", str(args.actuation), "--ladder", *map(str, args.ladder)]
                  if args.convergence else []),
-               *(["--unpinned"] if args.unpinned else [])]
+               *(["--unpinned"] if args.unpinned else []), *(["--round-corners"] if args.round_corners else [])]
         finished = subprocess.run(cmd)
         if finished.returncode and args.convergence:  # the other scenes' checks go on
             unchecked.append(scene)
@@ -715,9 +719,9 @@ def main():
         sys.exit(f"no reference check for {', '.join(unchecked)}: see the error above each")
     if args.convergence:
         return
-    stems = [variant(scene, unpinned=args.unpinned) for scene in SCENES]
+    stems = [variant(scene, unpinned=args.unpinned, round_corners=args.round_corners) for scene in SCENES]
     done = [json.loads((args.out / f"{s}.json").read_text()) for s in stems if (args.out / f"{s}.json").exists()]
-    print(summary(done, args.out, unpinned=args.unpinned))
+    print(summary(done, args.out, unpinned=args.unpinned, round_corners=args.round_corners))
 
 
 if __name__ == "__main__":
