@@ -6,6 +6,8 @@
     python experiments/stability_map.py --formulation mixed --nus 0.499 --out outputs/studies/stability_mixed
     python experiments/stability_map.py --corrector trust_region --nus 0.499 --out outputs/studies/stability_trust
     python experiments/stability_map.py --formulation mixed --inversion-barrier 0.5 --nus 0.499 --out outputs/studies/stability_mixed_barrier
+    python experiments/stability_map.py --formulation mixed --inversion-barrier 0.5 --nus 0.499 --mesh 8 5 \
+        --not-physical-in outputs/studies/stability_mixed_barrier --out outputs/studies/stability_mixed_barrier_8x5
 
 Per scene, every combination of
   material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
@@ -22,7 +24,7 @@ stable equilibrium, more is a saddle that a perturbation would leave; and whethe
 object (nma/geometry/validity.py: det F over the whole material, no boundary curve through another).
 Writes <scene>.json (every solve), <scene>.md (tables) and <scene>.png (heat maps: fraction of
 directions converged per material and design, and the time per solve relative to the scene's median
-converged solve).  Fidelity and solver: the paper's 5 x 5 and PARDISO.
+converged solve).  Fidelity and solver: the paper's 5 x 5 (--mesh: another) and PARDISO.
 """
 from __future__ import annotations
 
@@ -79,7 +81,10 @@ def designs(sim, rng) -> dict[str, dict]:
 
 def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int = 0, contact: bool = False,
               formulation: str = "displacement", nus: list[float] = NUS, max_iters: int | None = None,
-              corrector: str = "line_search", element_bound: bool = True, inversion_barrier: float = 0.0) -> dict:
+              max_step_iters: int | None = None, corrector: str = "line_search", element_bound: bool = True,
+              inversion_barrier: float = 0.0, mesh: tuple[int, int] | None = None, only: set | None = None) -> dict:
+    """One scene's map.  `mesh`: (ctrl_per_patch, quad_points) in place of the paper's fidelity; `only`: the
+    cells (design, nu, signs) to solve, of all the map's (None: every cell)."""
     import jax
     import jax.numpy as jnp
 
@@ -93,7 +98,11 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     solver = {"escape_saddles": escape_saddles, "corrector": corrector, "element_bound": element_bound}
     if max_iters is not None:  # else the solver's default budget
         solver["max_iters"] = max_iters
+    if max_step_iters is not None:
+        solver["max_step_iters"] = max_step_iters
     fidelity = {**config.load("fidelity", "paper"), "inversion_barrier": inversion_barrier}
+    if mesh is not None:
+        fidelity.update(ctrl_per_patch=mesh[0], quad_points=mesh[1])
     sim = Simulator.from_config(config.load("scene", scene), fidelity, solver,
                                 {"enabled": contact}, formulation)
     d_max = config.load("task", scene)["d_max"]
@@ -108,6 +117,8 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     jax.block_until_ready(solve(X0, jnp.zeros(sim.n_actuations), material(E, 0.3)))  # compile once
     records = []
     for (gname, geom), nu, s in itertools.product(geoms.items(), nus, dirs):
+        if only is not None and (gname, nu, tuple(s.tolist())) not in only:
+            continue
         X = sim.reference_points(geom)
         d = jnp.asarray(d_max * s)
         t0 = time.perf_counter()
@@ -145,9 +156,10 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
               f"{'' if state is None or state.valid else '(NOT PHYSICAL: ' + '; '.join(state.problems()) + ') '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
     return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
-            "fidelity": "paper", "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
+            "fidelity": "paper" if mesh is None else f"{mesh[0]} x {mesh[1]}",
+            "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
             + (f", {corrector}" if corrector != "line_search" else "") + ("" if element_bound else ", no element bound"),
-            "max_iters": sim.options.max_iters,
+            "max_iters": sim.options.max_iters, "max_step_iters": sim.options.max_step_iters,
             "contact": contact, "formulation": formulation, "inversion_barrier": inversion_barrier,
             "records": records}
 
@@ -202,7 +214,8 @@ def summarise(result: dict, out: Path) -> None:
 
     s = result["summary"]
     lines = [f"# Stability map: {result['scene']} ({result['dofs']} dofs, d_max {result['d_max']}, E {result['E']}, "
-             f"paper fidelity, {result['solver']}{', contact' if result.get('contact') else ''}"
+             f"{result.get('fidelity', 'paper')} fidelity, {result['solver']}"
+             f"{', contact' if result.get('contact') else ''}"
              f"{', formulation ' + result['formulation'] if result.get('formulation', 'displacement') != 'displacement' else ''}"
              f"{', inversion barrier at det F ' + str(result['inversion_barrier']) if result.get('inversion_barrier') else ''})",
              "",
@@ -272,12 +285,20 @@ def main():
     ap.add_argument("--corrector", default="line_search", choices=CORRECTORS,
                     help="solver.corrector (write to a separate --out to compare)")
     ap.add_argument("--max-iters", type=int, help="solver.max_iters, Newton's budget per solve (default: the solver's)")
+    ap.add_argument("--max-step-iters", type=int,
+                    help="solver.max_step_iters, corrector iterations before a load step is cut "
+                         "(default: the solver's)")
     ap.add_argument("--no-element-bound", dest="element_bound", action="store_false",
                     help="solver.element_bound=false: Newton steps on where the material inverts between Gauss "
                          "points (the maps before the bound was the default; write to a separate --out)")
     ap.add_argument("--inversion-barrier", type=float, default=0.0, metavar="J_HAT",
                     help="fidelity.inversion_barrier: a barrier on det F below J_HAT at every element's check "
                          "points (0: none, the default; write to a separate --out)")
+    ap.add_argument("--mesh", type=int, nargs=2, metavar=("CTRL", "QUAD"),
+                    help="fidelity.ctrl_per_patch and fidelity.quad_points in place of the paper's 5 x 5")
+    ap.add_argument("--not-physical-in", type=Path, metavar="DIR",
+                    help="solve only the cells whose converged state was not a physical object in the map in DIR "
+                         "(with --mesh: do they hold on a finer mesh?)")
     args = ap.parse_args()
     if args.replot:
         for scene in args.scenes:
@@ -289,9 +310,18 @@ def main():
     configure_jax()
     args.out.mkdir(parents=True, exist_ok=True)
     for scene in args.scenes:
+        only = None
+        if args.not_physical_in is not None:
+            previous = json.loads((args.not_physical_in / f"{scene}.json").read_text())["records"]
+            only = {(r["design"], r["nu"], tuple(r["signs"])) for r in previous
+                    if r["converged"] and r.get("valid") is False}
+            if not only:
+                continue
         result = run_scene(scene, args.quick, args.escape_saddles, contact=args.contact, formulation=args.formulation,
-                           nus=args.nus, max_iters=args.max_iters, corrector=args.corrector,
-                           element_bound=args.element_bound, inversion_barrier=args.inversion_barrier)
+                           nus=args.nus, max_iters=args.max_iters, max_step_iters=args.max_step_iters,
+                           corrector=args.corrector,
+                           element_bound=args.element_bound, inversion_barrier=args.inversion_barrier,
+                           mesh=args.mesh, only=only)
         summarise(result, args.out)
         s = result["summary"]
         print(f"{scene}: {s['converged']}/{s['solves']} converged, {s['stopped_inverting']} stopped where the material "
