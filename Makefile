@@ -3,7 +3,7 @@ PYTHON ?= python3
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
+.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -40,6 +40,12 @@ study-round:        ## the well-posed variants with round pore corners (scene.ro
 
 study-stability:    ## solver outcome at the extremes (nu, radii, corners, d_max) per scene -> outputs/studies/stability/
 	$(PYTHON) experiments/stability_map.py
+
+INCOMPRESSIBLE = --formulation mixed --inversion-barrier 0.5 --contact --corrector trust_region --max-step-iters 300 --nus 0.499
+study-incompressible: ## the map at nu 0.499 with the locking-free model, its settings for it (~15 min), then its states that are not physical again at 8 x 5 (~30 min) -> outputs/studies/stability_incompressible{,_8x5}/
+	$(PYTHON) experiments/stability_map.py $(INCOMPRESSIBLE) --max-iters 1000 --out outputs/studies/stability_incompressible
+	$(PYTHON) experiments/stability_map.py $(INCOMPRESSIBLE) --max-iters 3000 --mesh 8 5 \
+		--not-physical-in outputs/studies/stability_incompressible --out outputs/studies/stability_incompressible_8x5
 
 simulate:           ## one forward solve of the translation scene
 	$(PYTHON) -m nma.simulate scene=translation actuation=[1.0,-0.5]

@@ -68,3 +68,37 @@ def test_nearly_incompressible_mixed_model_converges_with_the_inversion_barrier(
     (alone, alone_load, _), (barrier, barrier_load, valid) = outcomes
     assert alone == INVERTS and alone_load < 1.0
     assert barrier == CONVERGED and barrier_load == 1.0 and valid
+
+
+@pytest.mark.slow
+def test_nearly_incompressible_snap_through_needs_long_load_steps_and_holds_at_8x5():
+    """The map's translation cell that the locking-free model (mixed, barrier 0.5, contact, trust region)
+    did not finish at nu 0.499: random radii, d = (-4, 4).  Near load 0.9 its corrector crosses a
+    snap-through at fixed load in about 150 iterations, the energy falling all the way; a load step cut
+    after 100 throws that away and the smaller increments meet the same snap (docs/stability.md).  Given
+    300 a load step, it reaches full load at the paper's 5 x 5, where its state folds between the check
+    points (not physical), and at 8 x 5, where it is physical."""
+    from nma import config
+    from nma.simulator import Simulator
+
+    d, mat = jnp.asarray([-4.0, 4.0]), material(stability_map.E, 0.499)
+    solver = {"corrector": "trust_region", "max_step_iters": 300, "max_iters": 1000}
+    valid = {}
+    for ctrl in (5, 8):
+        fidelity = {**config.load("fidelity", "paper"), "ctrl_per_patch": ctrl, "inversion_barrier": 0.5}
+        sim = Simulator.from_config(config.load("scene", "translation"), fidelity, solver, {"enabled": True}, "mixed")
+        params = stability_map.designs(sim, np.random.default_rng(0))["random radii"]  # the map's seed
+        sol = sim.solve(params, d, mat)  # raises SolverError where it does not reach full load
+        valid[ctrl] = StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u)).valid
+    assert valid == {5: False, 8: True}
+
+
+def test_map_solves_only_the_cells_asked_for_on_the_mesh_asked_for():
+    """`--not-physical-in DIR --mesh CTRL QUAD`: the map re-solves a chosen set of its cells on another
+    mesh (do states that are not physical at 5 x 5 hold on a finer one?), each cell the one of the same
+    name in the full map."""
+    cell = ("radii in the middle", 0.3, (1.0, -1.0))
+    result = stability_map.run_scene("translation", quick=False, nus=[0.3], mesh=(5, 2), only={cell})
+    (record,) = result["records"]
+    assert (record["design"], record["nu"], tuple(record["signs"])) == cell
+    assert result["fidelity"] == "5 x 2" and record["converged"] and record["valid"]
