@@ -2,10 +2,13 @@ import os
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 
-import jax  # noqa: E402
+from nma.runtime import configure_jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+# As every command does, before any array exists: float64, and JAX's persistent compilation cache, so
+# that the worker processes and the commands the tests start share what each of them compiled
+configure_jax()
 
+import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -18,6 +21,10 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 from nma import config  # noqa: E402
 from nma.schema import register  # noqa: E402
 from nma.simulator import Simulator  # noqa: E402
+
+# The MPI launcher of the environment the tests run in (the mpich wheel puts it beside the interpreter),
+# whether or not that environment is activated
+MPIEXEC = shutil.which("mpiexec", path=str(Path(sys.executable).parent)) or shutil.which("mpiexec") or "mpiexec"
 
 _SIMS = {}
 
@@ -89,7 +96,7 @@ def train_in_process(run_dir, *overrides) -> dict:
 def nma_run(run_dir, *overrides, mpi=0, timeout=600):
     cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
     if mpi:
-        cmd = ["mpiexec", "-n", str(mpi), *cmd]
+        cmd = [MPIEXEC, "-n", str(mpi), *cmd]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc
@@ -118,9 +125,20 @@ def _flatten(tree, prefix=""):
 @pytest.fixture(scope="session")
 def translation_run(tmp_path_factory):
     """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the first on 2
-    of the 4 evaluation targets), shared by the training, checkpoint, cluster and evaluation tests."""
-    run_dir = tmp_path_factory.mktemp("translation")
-    nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1", "trainer.eval_subset=2")
+    of the 4 evaluation targets), shared by the training, checkpoint, cluster and evaluation tests, and
+    trained once for all of pytest-xdist's worker processes (the first to ask trains it under a lock)."""
+    import fcntl
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the workers' base directories share this parent
+    run_dir = root / "translation_run"
+    with open(root / "translation_run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (run_dir / "metrics.json").exists():
+            shutil.rmtree(run_dir, ignore_errors=True)
+            nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1",
+                    "trainer.eval_subset=2")
     return run_dir
 
 

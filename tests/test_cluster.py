@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from conftest import FAST, _flatten, assert_same_params, final_params, nma_run
+from conftest import FAST, MPIEXEC, _flatten, assert_same_params, final_params, nma_run
 from nma import config
 
 
@@ -21,7 +21,7 @@ def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
 
 @pytest.mark.slow  # an end-to-end MPI run; test_mpi_two_ranks_match_single_process covers MPI in the fast suite
 def test_mpi_rotation_experiment_lands_in_its_task_directory(tmp_path):
-    cmd = ["mpiexec", "-n", "2", sys.executable, "-m", "nma.run", "experiment=repro_rotation_double",
+    cmd = [MPIEXEC, "-n", "2", sys.executable, "-m", "nma.run", "experiment=repro_rotation_double",
            "trainer.steps=1", "trainer.batch_size=2", "trainer.eval_every=1", "task.eval_angles=2",
            "trainer.progress=false", "trainer.animation_frames=0"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
@@ -30,6 +30,7 @@ def test_mpi_rotation_experiment_lands_in_its_task_directory(tmp_path):
     assert [r.parent.name for r in runs] == ["rotation_double"] and (runs[0] / "metrics.json").exists()
 
 
+@pytest.mark.slow  # the SLURM preset's composition and the sweep checks are fast tests
 def test_multirun_sweeps_seeds_through_submitit_and_summarises(tmp_path):
     """A 2-job sweep through hydra-submitit-launcher's local executor (the SLURM launcher's twin: each
     job a separate process), then the sweep summary of every job's overrides and final metric."""

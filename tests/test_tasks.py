@@ -49,6 +49,7 @@ def test_paper_tasks_as_specs_are_the_classes(simulator, name):
                                       jax.vmap(lambda t: getattr(b, f)(out_b, t))(ts))
 
 
+@pytest.mark.slow  # test_paper_tasks_as_specs_are_the_classes checks the specs' tasks against the classes fast
 def test_a_spec_trains_as_its_class(tmp_path):
     """Two training steps of task=translation and of task=translation_spec from the same seed: the same
     parameters and the same metric, to round-off."""
@@ -150,11 +151,12 @@ def test_a_force_goal_reads_what_the_actuation_pushes_with(simulator):
     h = jnp.zeros_like(d).at[0].set(1e-4)
     energy = lambda d: tight.energy(X, tight.solve(p, d, MAT).u, MAT)  # noqa: E731
     reaction = float(task.observe(tight, p, X, tight.solve(p, d, MAT).u, MAT)[0])
-    central = (energy(d + h) - energy(d - h)) / (2 * h[0])
+    central = float((energy(d + h) - energy(d - h)) / (2 * h[0]))  # pytest.approx takes Python numbers
     assert reaction > 0 and reaction == pytest.approx(central, rel=1e-6)
     assert float(task.metric(jnp.array([reaction]), jnp.array([0.1]))) == pytest.approx(abs(reaction - 0.1))
 
 
+@pytest.mark.slow  # test_a_force_goal_reads_what_the_actuation_pushes_with checks the force goal in the fast suite
 def test_a_force_goal_trains(tmp_path):
     """A run with goal force trains: the loss differentiates the energy's gradient through the adjoint."""
     from nma.train.runs import make_trainer
