@@ -1,15 +1,31 @@
-PYTHON ?= python3
+# The project's own virtual environment (make install makes it), with the versions requirements.lock pins:
+# every target runs in it.  PYTHON=python3 runs them in an environment of your own instead.
+BASE_PYTHON ?= python3
+VENV ?= .venv
+PYTHON ?= $(VENV)/bin/python
+LOCK = requirements.lock
 # pytest-xdist: one worker process per core, at most 4 (each holds its own JAX and simulators; the JAX
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
+.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
 
-install:            ## install nma and its test dependencies (editable)
-	$(PYTHON) -m pip install -e ".[test]"
+install:            ## a virtual environment in .venv with the locked versions the tests passed with, and nma in it (editable)
+	@$(BASE_PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11) and "nma needs Python 3.11 or newer; this is " + sys.version.split()[0] + " (make install BASE_PYTHON=python3.12)")'
+	test -x $(VENV)/bin/python || $(BASE_PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r $(LOCK)
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+
+lock:               ## refresh requirements.lock to the newest versions pyproject.toml allows, install them and run the fast suite on them
+	test -x $(VENV)/bin/python || $(BASE_PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "uv>=0.9,<1"
+	$(VENV)/bin/python -m uv pip compile pyproject.toml --extra test --universal --python-version 3.11 --fork-strategy fewest \
+		--upgrade --quiet --custom-compile-command "make lock" -o $(LOCK)
+	$(MAKE) install
+	$(MAKE) test PYTHON=$(VENV)/bin/python
 
 test:               ## fast tests (the CI run), on up to 4 worker processes
 	$(PYTHON) -m pytest -q $(PARALLEL)

@@ -140,3 +140,19 @@ def test_relative_link_resolves(page: Path, target: str):
     if fragment and where.suffix == ".md":
         assert fragment in anchors(where), (f"{page.relative_to(ROOT)}: {target}: no heading with anchor "
                                             f"#{fragment} in {where.relative_to(ROOT)}")
+
+
+# --- set-up --------------------------------------------------------------------------------------------
+
+def test_ci_runs_the_readmes_set_up_and_test_commands():
+    """CI (.ci/run) does what the README's quick start tells a new user: `make install` (a new virtual
+    environment with the locked versions), then `make test`; and the lock pins every package exactly."""
+    quick_start = next(b for b in blocks(ROOT / "README.md") if b.lang == "bash").code
+    ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()]
+    for command in ("make install", "make test"):
+        assert command in quick_start, f"README.md's first bash block does not run {command!r}"
+        assert command in ci, f".ci/run does not run {command!r}"
+    assert "rm -rf .venv" in ci, ".ci/run must build its environment anew, not reuse one"
+    pins = [line.split(";")[0].strip() for line in (ROOT / "requirements.lock").read_text().splitlines()
+            if line.strip() and not line.lstrip().startswith("#")]
+    assert pins and all(re.fullmatch(r"[A-Za-z0-9._-]+==[\w.+!-]+", p) for p in pins), pins
