@@ -39,6 +39,7 @@ def check_J(disc, quad, u):
     return float(det2(deformation_gradient(disc, quad, u, at_checks=True)).min())
 
 
+@pytest.mark.slow  # the barrier's force and tangent are checked against autodiff in the fast suite
 def test_the_barrier_changes_nothing_while_det_f_stays_above_j_hat(scene):
     on, off, X, quad = scene
     u, *_ = pulled(on, X, 0.6)

@@ -153,6 +153,7 @@ def test_corrupt_latest_checkpoint_falls_back_to_the_previous(tmp_path, translat
         checkpoint.load_latest(d)
 
 
+@pytest.mark.slow  # resume is checked by the SIGTERM test, warm starts by test_solver
 def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     """Warm starts (solver.warm_start, every warm solve audited) keep equilibria between steps; every
     checkpoint drops them, so a run stopped at a checkpoint and resumed solves exactly as the one

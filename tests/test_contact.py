@@ -54,6 +54,7 @@ def test_the_model_is_the_pores_walls(cell):
     assert sims[True].disc.block_points.shape == (sims[False].disc.block_points.shape[0] + model.n_blocks, 9)
 
 
+@pytest.mark.slow  # the contact force and tangent tests check in part that open pores add nothing
 def test_open_pores_change_nothing(cell):
     """Walls further apart than d_hat: the same equilibrium and the same gradient, to round-off."""
     sims, params, X, _ = cell
@@ -83,6 +84,7 @@ def test_a_closing_pore_touches_instead_of_passing_through(cell):
     assert 0 < gap < sims[True].disc.contact.d_hat  # touching: the barrier carries the load
 
 
+@pytest.mark.slow  # solver.path_rtol's default (0) is what the fast suite runs
 def test_a_looser_path_reaches_the_same_touching_state_in_fewer_iterations(cell):
     """solver.path_rtol closes the load steps before the last at a looser residual: the closing pore's
     walls come into contact over several load steps, and the solve ends at the same touching state (to
@@ -99,6 +101,7 @@ def test_a_looser_path_reaches_the_same_touching_state_in_fewer_iterations(cell)
     np.testing.assert_allclose(loose.u, strict.u, rtol=0, atol=1e-8 * float(jnp.abs(strict.u).max()))
 
 
+@pytest.mark.slow  # test_a_closing_pore_touches_instead_of_passing_through runs this predictor in part
 def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
     """A load step's linearised response does not see the barrier until the walls are within d_hat, so
     its time of impact stops it short; the load then goes on without the free dofs
@@ -114,6 +117,7 @@ def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
     np.testing.assert_allclose(on.u, stopped.u, rtol=0, atol=1e-8 * float(jnp.abs(stopped.u).max()))
 
 
+@pytest.mark.slow  # test_solver checks warm starts and their audits in the fast suite
 def test_a_warm_start_whose_walls_cross_under_the_new_design_is_redone_from_rest(cell):
     """A warm start carries a kept equilibrium's displacements to a design that has moved since.  Where
     the pore's walls, touching in that equilibrium, cross under the new design, the barrier (which sees
@@ -186,6 +190,7 @@ def test_force_and_tangent_against_central_differences(cell, touching):
     np.testing.assert_allclose(K, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
 
 
+@pytest.mark.slow  # the sparse assembly's contact blocks are checked against dense ones in the fast suite
 def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeypatch):
     """Tangents with room for fewer contact blocks than are near are incomplete: the assembly refuses
     them; with room for all of them, the same blocks as with a slot for every block.  Newton that starts
@@ -219,6 +224,7 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     np.testing.assert_allclose(solved[2][0], solved[None][0], rtol=0, atol=1e-13 * np.abs(solved[None][0]).max())
 
 
+@pytest.mark.slow  # test_backends_agree runs the traced driver, the touching-state tests the host one
 def test_the_traced_driver_reaches_the_same_touching_state(cell, touching):
     """The dense backend's Newton (one traced while_loop, a batch under vmap) assembles the contact blocks
     from the same Tangents: its touching state is the host driver's, its open one that without contact."""
@@ -232,6 +238,7 @@ def test_the_traced_driver_reaches_the_same_touching_state(cell, touching):
     np.testing.assert_allclose(us[0], sims[False].solve(params, ds[0], MAT).u, rtol=0, atol=1e-8 * float(jnp.abs(u).max()))
 
 
+@pytest.mark.slow  # the touching-state tests run this corrector path in part
 def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_the_exact_tangent_does(cell, touching):
     """contact.force_and_blocks(normal=...): the same energy and force, and tangent blocks that keep each
     term's normal stiffness only, positive semi-definite where the exact blocks are not.  Newton takes them
@@ -303,6 +310,7 @@ def test_settings_are_checked():
     assert contact.smallest_gap(disc.contact, X, X) > disc.contact.d_hat
 
 
+@pytest.mark.slow  # test_the_model_is_the_pores_walls checks the model at rest
 def test_short_segments_of_one_wall_do_not_touch_at_rest():
     """At a fine discretisation with the smallest pores the design box allows, a pore's wall is cut into
     segments shorter than d_hat; pieces of one wall are not walls that touch (their terms are left out

@@ -42,6 +42,7 @@ def check_convergence(spans, tolerance, formulation="displacement"):
     assert abs(limit - REFERENCE_TIP) < tolerance * REFERENCE_TIP
 
 
+@pytest.mark.slow  # the patch test and the mixed model's Cook's membrane cover the discretisation in the fast suite
 def test_cooks_membrane_converges_to_reference():
     check_convergence([24, 36, 48], 0.01)  # coarser meshes are not yet in the asymptotic range
 

@@ -63,6 +63,7 @@ def test_window_score_reads_the_colour_under_it(task):
     np.testing.assert_allclose(grey, 0.5, atol=1e-12)
 
 
+@pytest.mark.slow  # test_window_score_reads_the_colour_under_it reads the display in the fast suite
 def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeypatch):
     """ColourDisplay.scores reads each window sample from its nearest patches only: on equilibria under
     actuations up to d_max, with a colour field that is not uniform, it gives the scores and gradients of

@@ -62,6 +62,7 @@ def test_evaluate_on_a_subset_reads_the_same_samples_of_the_run(translation_run)
         EvaluateConfig(run=str(translation_run), eval_subset=0)
 
 
+@pytest.mark.slow  # test_evaluate_reproduces_the_run_and_refines_it evaluates with the run's own settings
 def test_evaluate_solves_with_the_runs_own_solver_unless_told(tmp_path, translation_run):
     """Without solver=, a run is re-evaluated with the solver settings it trained with (so its metric is
     reproduced): a run whose Newton had 2 iterations fails its solves again; solver= chooses others."""

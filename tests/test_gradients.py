@@ -82,6 +82,7 @@ def test_translation_gradients(radii, nu, d):
                       ["radii", "actuation", "material"])
 
 
+@pytest.mark.slow  # the mixed model's solves (Cook's membrane, nu 0.499) are fast tests; its adjoint shares the displacement model's
 def test_translation_gradients_mixed_formulation():
     """material.formulation=mixed, nearly incompressible (nu = 0.499, where the displacement model locks):
     the adjoint differentiates the element mean dilatation too.  Step 1e-4: at nu = 0.499 the solves at
@@ -94,6 +95,7 @@ def test_translation_gradients_mixed_formulation():
                       ["radii", "actuation", "material"], h=1e-4)
 
 
+@pytest.mark.slow  # graded knots are checked in test_bspline, the adjoint in test_translation_gradients
 def test_gradients_of_the_well_posed_translation_with_graded_knots():
     """The paper's translation scene without its pinned corners (its actuated segments hold it: the
     well-posed variant, docs/fidelity.md) at 8 x 3 with knots graded towards the patch corners."""
@@ -106,6 +108,7 @@ def test_gradients_of_the_well_posed_translation_with_graded_knots():
                       ["radii", "actuation", "material"])
 
 
+@pytest.mark.slow  # test_round_pore_corners checks the derived radii; the adjoint is test_translation_gradients'
 def test_gradients_of_the_well_posed_shape_matching_with_round_pore_corners():
     """Shape matching held by its actuated segments alone, its pores' corners round (scene.round_pore_corners:
     each corner radius derived from its neighbours'), at 8 x 2 with graded knots: the derived corners
@@ -122,6 +125,7 @@ def test_gradients_of_the_well_posed_shape_matching_with_round_pore_corners():
                       ["radii", "pore_radii", "corners", "actuation"])
 
 
+@pytest.mark.slow  # corner moves share the adjoint path of test_translation_gradients
 def test_corner_gradients_rotation_double():
     sim = tight_simulator("rotation_double")
     p = sim.init_params()
@@ -130,6 +134,7 @@ def test_corner_gradients_rotation_double():
                       ["corners", "radii", "actuation"])
 
 
+@pytest.mark.slow  # shape matching's loss gradient is checked in test_shape_matching
 def test_central_pore_gradients_shape_matching():
     sim = tight_simulator("shape_matching")
     d = 1.5 * jax.random.uniform(jax.random.PRNGKey(4), (12,), minval=-1)
@@ -137,6 +142,7 @@ def test_central_pore_gradients_shape_matching():
                       ["pore_radii", "corners", "actuation"])
 
 
+@pytest.mark.slow  # test_window_score_reads_the_colour_under_it checks the display's colours fast; the adjoint is test_translation_gradients'
 def test_colour_gradients_digital_mnist():
     sim = tight_simulator("digital_mnist")
     p = sim.init_params()
@@ -145,6 +151,7 @@ def test_colour_gradients_digital_mnist():
                       jax.random.PRNGKey(8), ["colours", "actuation"])
 
 
+@pytest.mark.slow  # the barrier's force and tangent, and the penalty's gradient through the equilibrium, are fast tests
 def test_gradients_with_the_inversion_barrier_acting(barrier_simulator):
     """conftest.barrier_case, whose equilibrium leans on the barrier (det F at check points near J_hat):
     the adjoint carries the barrier's force and tangent."""

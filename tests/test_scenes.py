@@ -274,7 +274,8 @@ def test_round_pore_corners():
 
 
 @pytest.mark.parametrize("task, actuations", [("translation", [[3.0, -1.0], [-2.0, -3.5]]),
-                                              ("rotation_double", [[2.5, -1.0], [-1.5, 2.0]])])
+                                              pytest.param("rotation_double", [[2.5, -1.0], [-1.5, 2.0]],
+                                                           marks=pytest.mark.slow)])  # the same rule on another scene
 def test_frozen_floor_holds_by_symmetry(simulator, task, actuations):
     """The frozen initial design's floor rests on a symmetry: its pointer moves only sideways
     (translation), its stick does not turn (rotation), whatever the actuations."""

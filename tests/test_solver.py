@@ -102,16 +102,28 @@ def test_auto_backend_is_pardiso_where_mkl_installs_and_superlu_elsewhere(monkey
     assert linear.make_backend("auto", disc).name == "superlu"
 
 
-def test_backends_agree_and_dense_batches_under_vmap():
+BACKEND_ACTUATIONS = jnp.array([[1.0, 0.5], [-1.5, 1.0], [0.5, -2.0]])
+
+
+def test_backends_agree():
+    """PARDISO, SuperLU and the dense backend's traced Newton reach one equilibrium."""
+    disc = discretise(scene_from_config(SMALL))
+    mat = material(0.07, 0.3)
+    sims = {name: Simulator(disc, name) for name in ("pardiso", "superlu", "dense")}
+    ref = [sims["superlu"].solve(disc.init_params(), d, mat).u for d in BACKEND_ACTUATIONS]
+    for name in ("pardiso", "dense"):
+        for d, u_ref in zip(BACKEND_ACTUATIONS, ref):
+            np.testing.assert_allclose(sims[name].solve(disc.init_params(), d, mat).u, u_ref, atol=1e-9)
+
+
+@pytest.mark.slow  # compiles the dense Newton batched and its adjoint; test_backends_agree runs it unbatched
+def test_the_dense_backend_batches_under_vmap_and_differentiates_as_the_host_does():
     disc = discretise(scene_from_config(SMALL))
     mat = material(0.07, 0.3)
     sims = {name: Simulator(disc, name) for name in ("pardiso", "superlu", "dense")}
     X = disc.reference_points(disc.init_params())
-    ds = jnp.array([[1.0, 0.5], [-1.5, 1.0], [0.5, -2.0]])
+    ds = BACKEND_ACTUATIONS
     ref = [sims["superlu"].solve(disc.init_params(), d, mat).u for d in ds]
-    for name in ("pardiso", "dense"):
-        for d, u_ref in zip(ds, ref):
-            np.testing.assert_allclose(sims[name].solve(disc.init_params(), d, mat).u, u_ref, atol=1e-9)
     u_batch, info = jax.jit(jax.vmap(sims["dense"].equilibrium, in_axes=(None, 0, None)))(X, ds, mat)
     assert np.all(np.asarray(info.status) == CONVERGED)
     np.testing.assert_allclose(u_batch, np.stack(ref), atol=1e-9)
@@ -178,6 +190,7 @@ def test_a_batch_factorises_its_designs_tangent_at_rest_once(escape):
     assert sim.backend.stats["adjoint_refactorisations"] == 0
 
 
+@pytest.mark.slow  # the stability-map cells run the load-step cuts in the fast suite
 def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(simulator):
     """Nearly incompressible (nu = 0.499) at full actuation: the first load steps are beyond Newton's
     reach, and the line search keeps cutting their corrector steps to a few percent.  Cutting such a
@@ -250,6 +263,7 @@ def test_trust_region_ratio_of_a_quadratic_energy_is_one_and_round_off_is_taken(
     assert bool(ok) and float(ratio) == 1.0
 
 
+@pytest.mark.slow  # the trust region's host solve and its gradient are fast tests; test_backends_agree runs the traced driver
 def test_trust_region_traced_and_host_solves_agree():
     """The same corrector as one traced loop (the dense backend, the GPU path) and driven from the host
     (PARDISO): the same equilibrium; and a misspelt corrector is refused, not run as the line search."""
@@ -262,6 +276,7 @@ def test_trust_region_traced_and_host_solves_agree():
         NewtonOptions(corrector="trust-region")
 
 
+@pytest.mark.slow  # test_escape_saddles_reaches_a_stable_equilibrium_below_the_saddle counts unstable modes fast
 def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
     """PARDISO's LDL^T inertia against a dense eigendecomposition, on the Hessian at a converged state
     (stable: none negative) and on the same element blocks shifted down until many are negative."""

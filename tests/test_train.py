@@ -81,9 +81,10 @@ def test_hdf5_fields_match_the_solution(translation_run):
     np.testing.assert_allclose(J, np.asarray(sample_jacobian(sim.disc, X_file, u_file, s)).reshape(-1), atol=1e-12)
 
 
-# rotation_single is slow: the same task class as rotation_double, on another scene
-@pytest.mark.parametrize("task, eval_size, metric", [pytest.param("rotation_single", "task.eval_angles=3",
-                                                                   "mean_angle_error_deg", marks=pytest.mark.slow),
+# slow: the fast suite trains translation end to end (the translation_run fixture) and checks each other
+# task's observations, loss and gradient on its own (test_tasks, test_shape_matching, test_digital_mnist)
+@pytest.mark.slow
+@pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", "task.eval_angles=3", "mean_angle_error_deg"),
                                                       ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
                                                       ("shape_matching", "task.eval_targets=3", "shape_error"),
                                                       ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
@@ -98,6 +99,7 @@ def test_every_task_trains_and_writes_its_artefacts(tmp_path, task, eval_size, m
         assert (tmp_path / "figures" / png).stat().st_size > 5_000
 
 
+@pytest.mark.slow  # test_nonfinite_loss_skips_updates_then_stops covers the non-finite path in process
 def test_diverging_learning_rate_stops_with_its_cause(tmp_path):
     """A finite but absurd learning rate: the network's actuations turn non-finite at step 2; the run
     stops at once with exit 1, naming the diverged group and the learning rate, not the solver."""
@@ -216,6 +218,7 @@ def test_digital_mnist_phases_chain(tmp_path):
     np.testing.assert_array_equal(final_params(tune)["geom"]["radii"], lookup_geom["radii"])  # pores fixed
 
 
+@pytest.mark.slow  # every training test writes the final fields; this checks the other two settings
 def test_fields_are_written_as_asked(tmp_path):
     """trainer.fields: every evaluation into fields/step_<n>/, or none at all (default: the final one)."""
     train_in_process(tmp_path / "all", "logger=none", *FAST, "trainer.eval_every=1", "trainer.fields=all")
