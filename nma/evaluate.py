@@ -41,7 +41,15 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     run, _, _ = load_run(settings.run)  # a run directory with a config and a checkpoint, before any work
     LINEAR_SOLVERS.get((settings.solver or run.solver).linear)
     contact = None if settings.contact is None else settings.contact.resolved(run.scene)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, run.scene), contact=contact)
+    fidelity = resolve(settings.fidelity, run.scene)
+    if fidelity.inversion_barrier is None:  # auto: the model the run trained with
+        fidelity = dataclasses.replace(fidelity, inversion_barrier=run.fidelity.inversion_barrier)
+    solver = settings.solver
+    if solver is not None:  # what it leaves to auto: as the run solved (its material decided those)
+        solver = dataclasses.replace(solver, **{k: getattr(run.solver, k) for k in ("corrector", "max_iters",
+                                                                                  "max_step_iters")
+                                                if getattr(solver, k) in (None, "auto")})
+    return dataclasses.replace(settings, fidelity=fidelity, contact=contact, solver=solver)
 
 
 def evaluate_at(settings, run: Path, fidelity, solver, contact=None, eval_subset=None) -> dict:
@@ -60,7 +68,7 @@ def evaluate_at(settings, run: Path, fidelity, solver, contact=None, eval_subset
     task = trainer.task
     return {"fidelity": fidelity_record(trainer.sim.disc, fidelity),
             "metric": ev[task.metric_name], "per_sample": ev["per_sample"], "failed_solves": ev["failed_solves"],
-            "failed_samples": ev["failed_samples"], "stopped_inverting": ev["stopped_inverting"],
+            "failed_samples": ev["failed_samples"], "over_converged": ev["over_converged"], "stopped_inverting": ev["stopped_inverting"],
             **{k: ev[k] for k in ("invalid_states", "checked_states", "min_J", "min_gap", "min_boundary_stretch",
                                "invalid_samples")},
             "seconds": time.perf_counter() - t0, "metric_name": task.metric_name, "unit": task.metric_unit}
@@ -105,7 +113,8 @@ def hydra_main(cfg: DictConfig) -> None:
     t, e = result["training_fidelity"], result["evaluated_fidelity"]
     logging.getLogger("nma.evaluate").info(
         "%s: %.4g %s at the training fidelity (%d dofs, %d of %d solves failed), %.4g at %dx%d%s (%d dofs, %d failed); "
-        "change %+.3g (each over its converged solves)", result["metric"], t["metric"], result["unit"],
+        "change %+.3g (each over every sample, a failed solve scored at the worse of the state it reached and no "
+        "actuation)", result["metric"], t["metric"], result["unit"],
         t["fidelity"]["dofs"], t["failed_solves"], result["samples"], e["metric"], e["fidelity"]["ctrl_per_patch"],
         e["fidelity"]["quad_points"], f" graded {e['fidelity']['grading']:g}" if e["fidelity"]["grading"] != 1.0 else "",
         e["fidelity"]["dofs"], e["failed_solves"], result["change"])

@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from . import cli
 from .config import CONF_DIR
 from .schema import TrainConfig, register
+from .schema.physics import describe_model, model_record
 from .train.runs import (check_init_from, check_run_dir, chosen_fidelity, fidelity_record, fingerprint, make_trainer,
                          validate)
 
@@ -35,6 +36,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     X_before = sim.reference_points(trainer.state["params"]["geom"])
     log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.n_dofs, world.size,
              s.trainer.batch_size, "frozen" if s.trainer.freeze_geometry else "learned")
+    if model_record(s)["nearly_incompressible"]:
+        log.info("material.nu = %g is nearly incompressible: %s", s.material.nu, describe_model(s))
     on_eval = None
     if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
         on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
@@ -51,11 +54,12 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,
                                        "batch_size": s.trainer.batch_size, "steps": s.trainer.steps,
                                        "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc, s.fidelity),
+                                       "model": model_record(s),
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
     r = evaluation.record
     failed, n = r["failed_solves"], len(r["per_sample"])
-    over = f" (over the {n - failed} of {n} solves that converged)" if failed else ""
+    over = f" over all {n} samples, {failed} of whose solves failed" if failed else f" over all {n} samples"
     log.info("final %s = %.4g %s%s after %d steps; %sthe initial design at rest, no actuation: %.4g",
              task.metric_name, r[task.metric_name], task.metric_unit, over, trainer.state["step"],
              "" if floor is None or s.trainer.freeze_geometry else
@@ -74,15 +78,16 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
 
 
 def failed_solves(record: dict) -> str:
-    """What an evaluation's failed solves were, in a line: its metric is the mean over the others."""
+    """What an evaluation's failed solves were and how the metric scored them, in a line."""
     failed, n = record["failed_solves"], len(record["per_sample"])
     why = [f"{k} {what}" for k, what in [
         (record["stopped_inverting"], "stopped at Newton's element bound (solver.element_bound), where the material "
                                       "would invert between Gauss points"),
         (failed - record["stopped_inverting"], "did not converge")] if k]
-    mean = f"the metric is the mean over the other {n - failed}" if failed < n else "no metric (NaN): none converged"
-    return (f"{failed} of the final evaluation's {n} solves failed ({'; '.join(why)}): {mean}. metrics.json lists "
-            f"them (failed_samples).")
+    others = (f"; over the other {n - failed} alone it is {record['over_converged']:.4g}" if failed < n
+              else "; none converged")
+    return (f"{failed} of the final evaluation's {n} solves failed ({'; '.join(why)}): the metric scores each at the "
+            f"worse of the state it reached and no actuation{others}. metrics.json lists them (failed_samples).")
 
 
 def validate_in(cfg: DictConfig, run_dir: Path):
@@ -104,8 +109,10 @@ def hydra_main(cfg: DictConfig) -> None:
     from .train.mpi import World
 
     run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    with cli.exit_codes(World().rank, run_dir), cli.stop_on_signals() as stop:
-        train(validate_in(cfg, run_dir)[0], run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
+    with cli.exit_codes(World().rank, run_dir):
+        settings = validate_in(cfg, run_dir)[0]
+        with cli.stop_on_signals(settings.trainer.stop_grace) as stop:
+            train(settings, run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
 
 
 def main() -> None:

@@ -1,4 +1,5 @@
-"""How every nma command sets JAX up: float64, and a persistent compilation cache.
+"""How every nma command sets JAX up: float64, a persistent compilation cache, and what XLA needs to
+know before it starts (before_jax_starts).
 
 The simulator's kernels (linearisation, step, adjoint pullback) compile once per scene, fidelity and
 Newton options, and JAX's persistent cache keeps them across processes: a second run, or each job of a
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 from pathlib import Path
 
 MIN_COMPILE_SECONDS = 0.0  # even the ~100 small programs of setting up a scene (20 ms each) load faster
@@ -20,11 +22,42 @@ def cache_dir() -> Path | None:
     return None if value.lower() in ("", "off", "none", "0") else Path(value)
 
 
+def available_cores() -> int:
+    """The cores this process may run on (its affinity: taskset, a SLURM allocation, an MPI binding)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+# XLA's CPU client runs programs on a thread pool as large as the cores this process may use.  On one
+# core that is one thread, which a training step's program holds while it calls back into the host
+# Newton, whose own compiled kernels then wait for a thread forever.  A client with two CPU devices
+# keeps a thread for them; every array stays on the first device.
+MIN_CPU_DEVICES = 2
+
+
+def before_jax_starts() -> None:
+    """What must be set before JAX starts its backend (the commands call it first thing): room for the
+    host Newton's kernels on one core (MIN_CPU_DEVICES), and no INFO line about the TPU that JAX probes
+    for and does not find (not news on a CPU or GPU)."""
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+    if available_cores() < MIN_CPU_DEVICES and "JAX_NUM_CPU_DEVICES" not in os.environ:
+        os.environ["JAX_NUM_CPU_DEVICES"] = str(MIN_CPU_DEVICES)  # read when jax is imported
+        if "jax" in sys.modules:  # imported already: its config takes it until the backend starts
+            try:
+                sys.modules["jax"].config.update("jax_num_cpu_devices", MIN_CPU_DEVICES)
+            except RuntimeError:
+                logging.getLogger("nma").warning(
+                    "this process may use one core, and JAX started before nma could keep XLA a thread for the "
+                    "host Newton: a training step may hang.  Call nma.runtime.configure_jax() before any JAX "
+                    "operation, or set JAX_NUM_CPU_DEVICES=%d", MIN_CPU_DEVICES)
+
+
 def configure_jax() -> None:
     import jax
 
-    # JAX probes for a TPU and logs its absence at INFO on every start: not news on a CPU or GPU
-    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+    before_jax_starts()
     jax.config.update("jax_enable_x64", True)
     path = cache_dir()
     if path is not None:

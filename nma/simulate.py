@@ -26,6 +26,7 @@ from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
 from .schema import SimulateConfig, build, register
+from .schema.physics import model_record, resolve_auto
 
 log = logging.getLogger("nma.simulate")
 register()
@@ -38,8 +39,8 @@ def validate(cfg: DictConfig) -> SimulateConfig:
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene),
-                               contact=settings.contact.resolved(settings.scene))
+    settings, _ = resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene)))
+    return settings
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:
@@ -65,7 +66,8 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
-              "material": {"E": s.material.E, "nu": s.material.nu, "formulation": s.material.formulation}}
+              "material": {"E": s.material.E, "nu": s.material.nu, "formulation": s.material.formulation},
+              "model": model_record(s)}
     params = sim.init_params()
     t0 = time.perf_counter()
     eq = sim.solve(params, d, mat, throw=False)

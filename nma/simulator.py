@@ -20,7 +20,8 @@ from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
 from .schema import ContactConfig, Fidelity, SolverConfig, build, scene_config, scene_from_config
 from .mechanics.energy import quadrature, strain_energy
-from .solver.implicit import available_cores, make_equilibrium, tangents_at
+from .runtime import available_cores
+from .solver.implicit import make_equilibrium, tangents_at
 from .solver.linear import make_backend
 from .solver.newton import Equations, Equilibrium
 from .solver.options import WARM_START_NEEDS_HOST, NewtonOptions

@@ -93,10 +93,14 @@ def train_in_process(run_dir, *overrides) -> dict:
     return train(validate(cfg), Path(run_dir), OmegaConf.to_container(cfg, resolve=True))
 
 
-def nma_run(run_dir, *overrides, mpi=0, timeout=600):
+def nma_run(run_dir, *overrides, mpi=0, timeout=600, one_core=False):
+    """`python -m nma.run` into run_dir; under `mpiexec -n mpi` with each rank bound to a core of its own,
+    or with one_core on the first core alone (as a SLURM job with --cpus-per-task=1 runs it)."""
     cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
     if mpi:
-        cmd = [MPIEXEC, "-n", str(mpi), *cmd]
+        cmd = [MPIEXEC, "-n", str(mpi), "-bind-to", "core", *cmd]
+    if one_core:
+        cmd = ["taskset", "-c", str(min(os.sched_getaffinity(0))), *cmd]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc
@@ -126,7 +130,8 @@ def _flatten(tree, prefix=""):
 def translation_run(tmp_path_factory):
     """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the first on 2
     of the 4 evaluation targets), shared by the training, checkpoint, cluster and evaluation tests, and
-    trained once for all of pytest-xdist's worker processes (the first to ask trains it under a lock)."""
+    trained once for all of pytest-xdist's worker processes (the first to ask trains it under a lock).
+    It runs on one core: that a run finishes there (within nma_run's timeout) is checked with it."""
     import fcntl
 
     root = tmp_path_factory.getbasetemp()
@@ -138,7 +143,7 @@ def translation_run(tmp_path_factory):
         if not (run_dir / "metrics.json").exists():
             shutil.rmtree(run_dir, ignore_errors=True)
             nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1",
-                    "trainer.eval_subset=2")
+                    "trainer.eval_subset=2", one_core=True, timeout=300)
     return run_dir
 
 

@@ -186,3 +186,18 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     for a, b in zip(leaves(whole), leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert resumed.sim.warm_starts.verdict == whole.sim.warm_starts.verdict == (stats["audits"], 0)
+
+
+def test_a_stop_signal_ends_a_step_that_never_finishes_within_its_grace():
+    """SIGTERM asks a run to stop after its current step; a step that does not finish (here the main
+    thread sleeps on, as a step stuck in compiled code would) is not waited for past the grace period:
+    the process ends with 128 + SIGTERM and says why."""
+    code = ("import os, signal, time\n"
+            "from nma.cli import stop_on_signals\n"
+            "with stop_on_signals(grace=1.0):\n"
+            "    os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    time.sleep(60)\n")
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM and time.monotonic() - t0 < 30, proc.stderr
+    assert "SIGTERM: the current step did not finish within trainer.stop_grace = 1 s" in proc.stderr

@@ -13,6 +13,7 @@ from nma import config
 
 
 def test_mpi_two_ranks_match_single_process(tmp_path, translation_run):
+    """Two ranks, each bound to a core of its own (as a cluster binds them), train what one process does."""
     nma_run(tmp_path, "task=translation", "logger=none", *FAST, mpi=2)
     assert not list(tmp_path.parent.glob(f"{tmp_path.name}_*"))  # one run directory
     assert (tmp_path / "metrics.json").exists()

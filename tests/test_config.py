@@ -21,7 +21,7 @@ BAD_RUN = [
     ("trainer.steps=1.5", "trainer.steps must be an integer, got '1.5'"),
     ("fidelity.ctrl_per_patch=five", "fidelity.ctrl_per_patch must be an integer, got 'five'"),
     ("material.E=abc", "material.E must be a finite number, got 'abc'"),
-    ("material.formulation=fbar", "material.formulation must be one of ['displacement', 'mixed'], got 'fbar'"),
+    ("material.formulation=fbar", "material.formulation must be one of ['auto', 'displacement', 'mixed'], got 'fbar'"),
     ("+solver.foo=1", "solver.foo is not a known setting"),
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
     ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
@@ -81,7 +81,7 @@ BAD_SIMULATE = [
     ("scene.groups.0.direction=[0,0]", "scene.groups.direction of group left must not be [0, 0]"),
     ("scene.pinned=[[0,0]] scene.groups=[]", "nothing stops it rotating about (0, 0)"),
     ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
-    ("solver.corrector=dogleg", "solver.corrector must be one of ['line_search', 'trust_region'], got 'dogleg'"),
+    ("solver.corrector=dogleg", "solver.corrector must be one of ['auto', 'line_search', 'trust_region'], got 'dogleg'"),
     ("scene.corner_box=2.5", "scene.corner_box must be < half the smallest cell (2.5), got 2.5"),
 ]
 
@@ -449,3 +449,29 @@ def test_bad_config_names_field_and_range(override, message):
     with pytest.raises(ConfigError) as err:
         validate(compose_cfg(override))
     assert message in str(err.value)
+
+
+def test_auto_models_a_nearly_incompressible_material_locking_free_and_a_compressible_one_as_before():
+    """material.formulation=auto, solver.corrector=auto and the limits and barrier left unset (the
+    defaults): at nu 0.3 they resolve to exactly the settings stated before auto existed (equal
+    settings: the same discretisation and Newton options, so the same answers bit for bit); from nu
+    0.495 on, to the locking-free model with the settings under which every cell of the stability map
+    at nu 0.499 converges (docs/stability.md); a stated choice wins."""
+    from nma.schema.physics import model_record
+    from nma.train.runs import validate
+
+    stated = validate(compose_cfg("material.formulation=displacement", "solver.corrector=line_search",
+                                  "solver.max_iters=200", "solver.max_step_iters=100", "fidelity.inversion_barrier=0",
+                                  "contact=auto"))
+    assert validate(compose_cfg()) == stated
+    for nu, nearly in ((0.49, False), (0.495, True), (0.499, True)):
+        record = model_record(validate(compose_cfg(f"material.nu={nu}")))
+        model = {"formulation": "mixed", "corrector": "trust_region", "max_iters": 1000, "max_step_iters": 300,
+                 "inversion_barrier": 0.5, "contact": True} if nearly else \
+                {"formulation": "displacement", "corrector": "line_search", "max_iters": 200, "max_step_iters": 100,
+                 "inversion_barrier": 0.0, "contact": False}
+        assert record == {"nearly_incompressible": nearly, **model}, nu
+    own = validate(compose_cfg("material.nu=0.499", "material.formulation=displacement", "solver.max_iters=50",
+                               "contact=off"))
+    assert (own.material.formulation, own.solver.max_iters, own.contact.enabled) == ("displacement", 50, False)
+    assert (own.solver.corrector, own.solver.max_step_iters, own.fidelity.inversion_barrier) == ("trust_region", 300, 0.5)

@@ -39,4 +39,7 @@ class Resolution:
         """From a setting with these fields (a Fidelity); None: the paper's 5 x 5."""
         if setting is None or isinstance(setting, cls):
             return setting or cls()
-        return cls(*(getattr(setting, f.name) for f in fields(cls)))
+        values = {f.name: getattr(setting, f.name) for f in fields(cls)}
+        if values["inversion_barrier"] is None:  # auto, not resolved by a material: off, as for a compressible one
+            values["inversion_barrier"] = 0.0
+        return cls(**values)

@@ -9,6 +9,9 @@ FORMULATIONS = ("displacement", "mixed")
 # the Neo-Hookean material's admissible moduli: nu = 0.5 is incompressible, which a displacement model
 # cannot represent
 MATERIAL_RANGES = {"E": "(0, inf)", "nu": "(-1, 0.5)"}
+# nu from which the volume constraint, not the load path, sets Newton's pace: a nearly incompressible
+# material (bulk over shear modulus at least 100), which the auto settings model locking-free
+NEARLY_INCOMPRESSIBLE = 0.495
 
 
 @dataclass(frozen=True)

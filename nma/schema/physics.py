@@ -5,7 +5,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import ClassVar, Optional
 
 from ..geometry.options import GRADING_MAX, Resolution
-from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, ContactSettings
+from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, NEARLY_INCOMPRESSIBLE, ContactSettings
 from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
 from ..settings import Schema, bounded, choice
@@ -17,8 +17,9 @@ class MaterialConfig(Schema):
     prefix: ClassVar[str] = "material"
     E: float = bounded(0.07, MATERIAL_RANGES["E"])
     nu: float = bounded(0.3, MATERIAL_RANGES["nu"], doc="0.5 is incompressible, which a displacement model cannot represent")
-    formulation: str = choice("displacement", FORMULATIONS, doc="mixed: the volume term at each element's mean "
-                              "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy)")
+    formulation: str = choice("auto", ("auto", *FORMULATIONS), doc="mixed: the volume term at each element's mean "
+                              "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy); auto: mixed "
+                              f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
 
 
 _RESOLUTION = Resolution()  # the discretisation's defaults; the config declares their ranges
@@ -37,9 +38,10 @@ class Fidelity(Schema):
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
                                          "error allowed against the 14 x 5 reference; the scene's measured front "
                                          "then sets the two above")
-    inversion_barrier: float = bounded(_RESOLUTION.inversion_barrier, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
+    inversion_barrier: Optional[float] = bounded(None, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
                                        "every element, corners included, where the Gauss points do not see, and "
-                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
+                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off; None (auto): "
+                                       "by the material (material_model)")
     grading: float = bounded(_RESOLUTION.grading, f"[1, {GRADING_MAX:g}]", doc="knots graded towards every patch "
                              "corner as (i/k)^grading in each side's outer thirds, where supports and actuated "
                              "segments end (stress singularities); 1: uniform (docs/fidelity.md)")
@@ -108,10 +110,10 @@ class SolverConfig(Schema):
                                    "(0: rtol; the last always meets rtol): fewer iterations, but where "
                                    "several equilibria are near, another may be reached (docs/validity.md)")
     atol: float = bounded(_NEWTON.atol, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
-    max_iters: int = bounded(_NEWTON.max_iters, "[1, 100000]")
-    max_step_iters: int = bounded(_NEWTON.max_step_iters, "[1, 100000]",
-                                  doc="corrector iterations before a load step fails (up to 5 more while its "
-                                      "residual is within 1000x the tolerance)")
+    max_iters: Optional[int] = bounded(None, "[1, 100000]", doc="None (auto): by the material (material_model)")
+    max_step_iters: Optional[int] = bounded(None, "[1, 100000]",
+                                            doc="corrector iterations before a load step fails (up to 5 more while its "
+                                                "residual is within 1000x the tolerance); None (auto): by the material")
     initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]")
     min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]")
     grow: float = bounded(_NEWTON.grow, "[1, 100]")
@@ -124,10 +126,11 @@ class SolverConfig(Schema):
     max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
                                     doc="heavily damped corrector steps in a row that cut the load step at once "
                                         "(Newton's model does not hold there)")
-    corrector: str = choice(_NEWTON.corrector, CORRECTORS,
+    corrector: str = choice("auto", ("auto", *CORRECTORS),
                             doc="a corrector step at fixed load: the Newton step shortened by a line search, or "
                                 "a trust region on the energy's quadratic model (its diagonal shift adapted), "
-                                "which damps a soft mode's part of the step only (docs/stability.md)")
+                                "which damps a soft mode's part of the step only (docs/stability.md); auto: by "
+                                "the material (material_model)")
     contact_exact_below: float = bounded(_NEWTON.contact_exact_below, "[0, 1]",
                                          doc="with contact, Newton's correctors use contact's normal stiffness "
                                              "only (positive semi-definite) until the residual falls below this "
@@ -154,5 +157,73 @@ class SolverConfig(Schema):
             self.fail("warm_start", WARM_START_NEEDS_HOST)
 
     def newton(self) -> NewtonOptions:
-        """Newton's own settings, handed to the solver."""
-        return NewtonOptions(**{f.name: getattr(self, f.name) for f in fields(NewtonOptions)})
+        """Newton's own settings, handed to the solver; what is left to auto takes the compressible
+        material's choice (Newton's defaults) unless resolve_auto decided it by the material."""
+        values = {f.name: getattr(self, f.name) for f in fields(NewtonOptions)}
+        return NewtonOptions(**{**values, **{k: v for k, v in COMPRESSIBLE.solver.items() if values[k] in (None, "auto")}})
+
+
+@dataclass(frozen=True)
+class MaterialModel:
+    """What the auto settings choose for a material: its formulation, Newton's corrector and iteration
+    limits, the inversion barrier and whether the pores' walls touch (None: as the scene says)."""
+    formulation: str
+    solver: dict
+    inversion_barrier: float
+    contact: Optional[bool]
+
+
+# A compressible material: the displacement model and Newton's defaults.  A nearly incompressible one
+# (nu >= NEARLY_INCOMPRESSIBLE): the locking-free model with the settings under which every cell of the
+# stability map at nu 0.499 converges (make study-incompressible; docs/stability.md).
+COMPRESSIBLE = MaterialModel("displacement", {"corrector": _NEWTON.corrector, "max_iters": _NEWTON.max_iters,
+                                              "max_step_iters": _NEWTON.max_step_iters}, 0.0, None)
+NEARLY_INCOMPRESSIBLE_MODEL = MaterialModel("mixed", {"corrector": "trust_region", "max_iters": 1000,
+                                                      "max_step_iters": 300}, 0.5, True)
+
+
+def material_model(nu: float) -> MaterialModel:
+    """The model a material of Poisson's ratio nu needs: what material.formulation=auto, solver.corrector=auto,
+    solver.max_iters, solver.max_step_iters and fidelity.inversion_barrier left unset, and contact=auto, take."""
+    return NEARLY_INCOMPRESSIBLE_MODEL if nu >= NEARLY_INCOMPRESSIBLE else COMPRESSIBLE
+
+
+def resolve_auto(settings):
+    """Command settings (material, fidelity, solver, contact, scene) with every choice left to auto made:
+    by the material's compressibility (material_model) and, for contact, by the scene where the material
+    leaves it open.  Stated choices are kept.  Returns (settings, what auto chose: {setting: value})."""
+    model = material_model(settings.material.nu)
+    chosen = {}
+    material = settings.material
+    if material.formulation == "auto":
+        material = replace(material, formulation=model.formulation)
+        chosen["material.formulation"] = model.formulation
+    solver_auto = {k: v for k, v in model.solver.items() if getattr(settings.solver, k) in (None, "auto")}
+    chosen.update({f"solver.{k}": v for k, v in solver_auto.items()})
+    fidelity = settings.fidelity
+    if fidelity.inversion_barrier is None:
+        fidelity = replace(fidelity, inversion_barrier=model.inversion_barrier)
+        chosen["fidelity.inversion_barrier"] = model.inversion_barrier
+    contact = settings.contact
+    if contact.enabled is None:
+        contact = replace(contact, enabled=bool(settings.scene.contact) if model.contact is None else model.contact)
+        chosen["contact.enabled"] = contact.enabled
+    return replace(settings, material=material, solver=replace(settings.solver, **solver_auto), fidelity=fidelity,
+                   contact=contact), chosen
+
+
+def model_record(settings) -> dict:
+    """The modelling choices resolved settings solve with, the auto ones among them (metrics.json, the
+    JSON of nma.simulate): what a reader needs to know which model answered."""
+    return {"nearly_incompressible": settings.material.nu >= NEARLY_INCOMPRESSIBLE,
+            "formulation": settings.material.formulation, "corrector": settings.solver.corrector,
+            "max_iters": settings.solver.max_iters, "max_step_iters": settings.solver.max_step_iters,
+            "inversion_barrier": settings.fidelity.inversion_barrier, "contact": settings.contact.enabled}
+
+
+def describe_model(settings) -> str:
+    """The model resolved settings solve with, in words (a log line)."""
+    m = model_record(settings)
+    return (f"material.formulation={m['formulation']}, solver.corrector={m['corrector']}, solver.max_iters="
+            f"{m['max_iters']}, solver.max_step_iters={m['max_step_iters']}, fidelity.inversion_barrier="
+            f"{m['inversion_barrier']:g}, contact {'on' if m['contact'] else 'off'}")

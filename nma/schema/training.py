@@ -56,6 +56,10 @@ class TrainerConfig(Schema):
     animation_frames: int = bounded(24, "[0, 1000]", doc="frames of figures/sweep.gif, the material as the task's "
                                                         "descriptor sweeps its range; 0: none")
     max_nonfinite_steps: int = bounded(3, "[1, 1000]", doc="consecutive skipped (non-finite) updates before stopping")
+    stop_grace: float = bounded(60.0, "(0, 86400]", doc="seconds a SIGTERM or Ctrl-C waits for the current step to "
+                                "finish and be checkpointed before the run stops without it")
+    max_failed_steps: int = bounded(5, "[1, 1000]", doc="consecutive steps in which no sample of the batch converged "
+                                    "(each skipped: nothing to learn from) before stopping")
     inversion_penalty: float = bounded(0.1, "[0, inf)", doc="weight of a loss term that steers the design away "
                                        "from states that invert between Gauss points: the sum over every element's "
                                        "4 x 4 check points of max(0, inversion_margin - det F)^2 (nma.mechanics.energy, "

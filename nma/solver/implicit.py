@@ -24,7 +24,6 @@ Per-sample results do not depend on the number of threads: samples share nothing
 from __future__ import annotations
 
 import itertools
-import os
 import threading
 from collections import Counter, OrderedDict
 from concurrent.futures import ThreadPoolExecutor
@@ -40,6 +39,7 @@ from ..mechanics.energy import energy_force_tangents, quadrature
 from .newton import (CONVERGED, ITERATION_LIMIT, RUNNING, Equations, Equilibrium, advance, hold, leave_saddle,
                      linearise, newton_solve, result, setup)
 from .options import NewtonOptions
+from ..runtime import available_cores
 
 CONTACT_SLOTS = 512  # contact blocks a solve's linearisations have room for at first (a rotation at 11 x 2 at its
                      # largest angle: 169 near of 28,512); more near: 4x as many (kernels compiled once per room)
@@ -219,13 +219,6 @@ class Kernels:
         self.step = jax.jit(partial(_step, eqs, opts))
         self.leave = jax.jit(partial(leave_saddle, eqs, opts))
         self.tangents = jax.jit(partial(tangents_at, eqs))
-
-
-def available_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def tangents_at(eqs: Equations, X, d, mat, u_free):

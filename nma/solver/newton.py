@@ -48,6 +48,7 @@ import numpy as np
 from ..errors import SolverError
 from ..geometry.discretise import Discretisation
 from ..mechanics import contact
+from ..mechanics.options import NEARLY_INCOMPRESSIBLE
 from ..mechanics.energy import (Quadrature, Tangents, check_point_dets, energy_force_tangents, quadrature,
                                 step_bounds, strain_energy)
 from .assembly import element_dofs
@@ -58,7 +59,6 @@ FINISHING_ITERS = 5  # corrector iterations past max_step_iters for a step nearl
 FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this factor of the tolerance
 TRUST_ACCEPT, TRUST_POOR, TRUST_GOOD = 0.1, 0.25, 0.75  # actual over predicted fall: taken, shift raised, lowered
 TRUST_REJECTIONS = 10  # rejected trust-region steps in a row that cut the load step (the shift grew 4^10-fold)
-NEARLY_INCOMPRESSIBLE = 0.495  # nu from which the volume constraint, not the load path, sets Newton's pace
 STATUS_TEXT = {RUNNING: "still running", CONVERGED: "converged",
                INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
                ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
@@ -608,8 +608,9 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
     if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == ITERATION_LIMIT:
         msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
                 f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): Newton needs several times the usual iterations "
-                f"there, with either material.formulation; raise solver.max_iters (the stability map's failures "
-                f"at nu = 0.499 converge within 500), take solver.corrector=trust_region (112 of the map's 116 "
-                f"solves at nu = 0.499 within 200 iterations, against the line search's 94) or lower nu")
+                f"there; the commands' auto settings model it locking-free (material.formulation=mixed, "
+                f"solver.corrector=trust_region, solver.max_step_iters=300, solver.max_iters=1000, "
+                f"fidelity.inversion_barrier=0.5, contact on): leave those to auto, raise solver.max_iters, "
+                f"or lower nu")
     return SolverError(msg, info)
 

@@ -39,6 +39,7 @@ class Task:
     def eval_set(self) -> jnp.ndarray:
         raise NotImplementedError
 
+    higher_is_better = False  # the metric's direction (an error falls, a count of right answers rises)
     outline = False     # True: observe() is a closed curve (figures draw it as one)
     supervised = False  # True: the loss compares actuations with actuation_targets(t); nothing is solved
     frozen_geometry: tuple[str, ...] = ()  # geometry groups this task never learns
@@ -46,6 +47,16 @@ class Task:
     def hidden(self, configured: list[int]) -> list[int]:
         """The encoder's hidden widths for this task."""
         return configured
+
+    def failed_score(self, reached, at_rest):
+        """The metric of a sample whose solve failed: the worse of the state it reached (its last
+        equilibrium, at part of the load; NaN where there is none) and no actuation at all.  Both are
+        states the structure does hold, and taking the worse means a failure never scores better than
+        doing nothing, so a design gains nothing by failing the samples it cannot do."""
+        import numpy as np
+
+        worse = np.fmin if self.higher_is_better else np.fmax  # fmin/fmax pass over a NaN
+        return worse(np.asarray(reached, dtype=float), np.asarray(at_rest, dtype=float))
 
     def extra_metrics(self, out: jnp.ndarray, ts: jnp.ndarray, ok) -> dict:
         """Further evaluation numbers for metrics.json (name -> value)."""

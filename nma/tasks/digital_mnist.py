@@ -202,6 +202,7 @@ class ColourDisplay:
 
 class DigitalMNIST(Task):
     metric_name = "digit_exact_match"
+    higher_is_better = True
     metric_unit = "fraction of held-out digits with all seven segments right"
 
     def __init__(self, cfg: DigitalMNISTTask, display: ColourDisplay, table=None):

@@ -103,7 +103,7 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
     validity = evaluation.validity
     for i, (r, c) in zip(pick, place):
         ax = axes[r, c]
-        status = f"error {per[i]:.3g}" if ok[i] else "solve failed"
+        status = f"error {per[i]:.3g}" if ok[i] else f"solve failed, scored {per[i]:.3g}"
         invalid = validity[i] is not None and not validity[i].valid
         draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"{task.describe(ts[i])}\n{status}"
                    + (", NOT PHYSICAL" if invalid else ""), colour=MATERIAL["invalid" if invalid else "deformed"])
@@ -165,8 +165,10 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
         ax.plot(xy[:, 0], xy[:, 1] if xy.shape[1] > 1 else np.zeros(len(xy)), "x", color=ACTUATED, ms=8,
                 mew=2, label="solve failed")
         ax.legend(fontsize=8)
+    failed = evaluation.record["failed_solves"]
     ax.set_title(f"{task.name}: {task.metric_label} per evaluation sample\n"
-                 f"(mean {evaluation.record[task.metric_name]:.3g} {task.metric_unit})", fontsize=9)
+                 f"(mean over all {len(per)}: {evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
+                 + (f"; {failed} solves failed" if failed else "") + ")", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
@@ -307,7 +309,7 @@ def figure_colour_map(path: Path, sim, task, geom):
 def figure_curves(path: Path, task, history: list):
     steps = [h["step"] for h in history]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
-    ax[0].plot(steps, [h["loss"] for h in history], lw=1)
+    ax[0].plot(steps, [np.nan if h["loss"] is None else h["loss"] for h in history], lw=1)  # a gap: a skipped step
     ax[0].set(xlabel="training step", ylabel="training loss (batch)", yscale="log", title="loss of each step")
     ev = [(h["step"], h[task.metric_name]) for h in history if task.metric_name in h]
     if ev:

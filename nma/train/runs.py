@@ -10,6 +10,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from ..schema import TrainConfig, build
+from ..schema.physics import resolve_auto
 
 
 def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainConfig:
@@ -25,8 +26,8 @@ def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainCon
     TASKS.get(settings.task.factory)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen),
-                               contact=settings.contact.resolved(settings.scene))
+    settings, _ = resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen)))
+    return settings
 
 
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
@@ -155,7 +156,7 @@ def fidelity_record(disc, fidelity) -> dict:
 
     choice = choice_of(fidelity, disc.spec)
     return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
-            "grading": disc.fidelity.grading, "dofs": disc.n_dofs,
+            "grading": disc.fidelity.grading, "inversion_barrier": disc.fidelity.inversion_barrier, "dofs": disc.n_dofs,
             "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
 
 
@@ -170,7 +171,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     from ..mechanics.material import material
     from ..registry import MODELS, TASKS
     from ..simulator import Simulator
-    from ..solver.implicit import available_cores
+    from ..runtime import available_cores
     from .logger import make_logger
     from .mpi import World
     from .trainer import Trainer

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads thei
     from ..schema import OptimConfig, TrainerConfig
 from ..solver.newton import CONVERGED, INVERTS, NONFINITE_INPUT, failure
 from . import checkpoint
+from .optimizer import FAILED_STEP_ADVICE, make_optimizer
 from .mpi import World
 
 log = logging.getLogger(__name__)
@@ -43,9 +44,9 @@ log = logging.getLogger(__name__)
 class Evaluation:
     """One evaluation at the current parameters: what metrics.json records of it, and the solved states
     that the figures and the HDF5 fields draw."""
-    record: dict       # step, the task's metric by its name and its extra metrics, failed_solves and
-                       # failed_samples (indices; their per_sample values are of the last equilibrium reached), the
-                       # validity summary and invalid_samples, per_sample, eval_actuations (JSON)
+    record: dict       # step, the task's metric (mean over every sample) and extra metrics, failed_solves,
+                       # failed_samples (their per_sample values: Task.failed_score), over_converged (the mean
+                       # over the others, or None), validity summary, invalid_samples, per_sample, eval_actuations
     X: Any             # (n_points, 2) reference control points
     d: Any             # (n, n_actuations) actuations
     u: Any             # (n, n_points, 2) displacements
@@ -53,23 +54,6 @@ class Evaluation:
     ts: Any            # the descriptors
     ok: np.ndarray     # (n,) converged
     validity: list     # each converged state's Validity; None where the solve failed
-
-
-def make_optimizer(ocfg: OptimConfig, geometry_keys, freeze_geometry: bool, steps: int, max_nonfinite: int,
-                   frozen: tuple[str, ...] = ()):
-    """Adam per parameter group; a frozen group (scale 0 or the geometry-frozen baseline) gets no update.
-    An update whose gradients are not finite is skipped (optax.apply_if_finite counts them)."""
-    def lr(scale):
-        if ocfg.schedule == "cosine":
-            return optax.cosine_decay_schedule(ocfg.lr * scale, steps, alpha=ocfg.final_fraction)
-        return ocfg.lr * scale
-
-    transforms = {"network": optax.adam(lr(1.0))}
-    for k in geometry_keys:
-        scale = 0.0 if freeze_geometry or k in frozen else float(getattr(ocfg.lr_scale, k))
-        transforms[k] = optax.adam(lr(scale)) if scale > 0 else optax.set_to_zero()
-    labels = {"net": "network", "geom": {k: k for k in geometry_keys}}
-    return optax.apply_if_finite(optax.multi_transform(transforms, labels), max_nonfinite)
 
 
 class Trainer:
@@ -95,9 +79,11 @@ class Trainer:
         self.history: list[dict] = []
         self._warm_stop_said = False
         self._inverts_said = False  # the warning that training solves stop at the element bound, once a run
+        self._failed_in_a_row = 0  # steps in a row in which no sample of the batch converged
         self._grad = jax.jit(jax.value_and_grad(self._loss_sum, has_aux=True))
         self._update = jax.jit(self._apply)
         self._evaluate = jax.jit(self._forward)
+        self._at_rest = jax.jit(self._observe_at_rest)
 
     @staticmethod
     def _init_from(run: Path, params, exact: bool = False):
@@ -142,6 +128,11 @@ class Trainer:
         out = jax.lax.map(observe, u)
         return X, d, u, out, info
 
+    def _observe_at_rest(self, params):
+        """What the task reads off the design with no actuation: nothing moves."""
+        X = self.sim.reference_points(params["geom"])
+        return self.task.observe(self.sim, params["geom"], X, jnp.zeros_like(X), self.mat)
+
     def _loss_sum(self, params, ts):
         if self.task.supervised:  # regress the actuations onto given ones; nothing to solve
             d = self.model.apply(params["net"], self.task.net_input(ts))
@@ -180,9 +171,8 @@ class Trainer:
             raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
                                                      f"are not finite, so nothing could be solved"))
         if n_ok == 0:
-            bad = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
-            raise failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[bad], info),
-                          f"step {step}: no sample of the batch converged; ")
+            return self._skip_failed_step(step, ok, info, t0)
+        self._failed_in_a_row = 0
         warm = self.sim.warm_starts
         if warm is not None and warm.stopped and not self._warm_stop_said:
             log.warning("step %d: warm starts stopped: %s; solves start from rest for the rest of the run",
@@ -210,6 +200,24 @@ class Trainer:
                 raise TrainingError(self._diagnose(step + 1, f"the loss or gradient was not finite for {skipped} "
                                                              f"steps in a row (in {groups or 'the loss'})"))
         return rec
+
+    def _skip_failed_step(self, step: int, ok, info, t0: float) -> dict:
+        """A step in which no sample of the batch converged has no gradient: it is skipped (the parameters
+        and the optimiser's state stay as they were) and counted; trainer.max_failed_steps of them in a
+        row stop the run, saying why the last batch's first sample failed."""
+        self._failed_in_a_row += 1
+        local = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
+        first = jax.tree_util.tree_map(lambda a: np.asarray(a)[local], info)
+        if self._failed_in_a_row >= self.cfg.max_failed_steps:
+            err = failure(first, f"step {step + 1}: no sample of the batch converged in {self._failed_in_a_row} "
+                                 f"steps in a row (trainer.max_failed_steps); the last batch's first: ")
+            raise type(err)(f"{err}. {FAILED_STEP_ADVICE.get(int(first.status), FAILED_STEP_ADVICE[None])}", err.info)
+        log.warning("step %d: no sample of the batch converged (the first: %s); step skipped (%d in a row of "
+                    "trainer.max_failed_steps %d)", step + 1, failure(first), self._failed_in_a_row,
+                    self.cfg.max_failed_steps)
+        self.state = {**self.state, "step": step + 1}
+        return {"step": step + 1, "loss": None, "failed_solves": self.cfg.batch_size, "failed_step": 1,
+                "seconds": time.perf_counter() - t0}
 
     @staticmethod
     def _nonfinite_groups(tree) -> list[str]:
@@ -247,13 +255,17 @@ class Trainer:
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
         status = np.asarray(info.status)
         ok = status == CONVERGED
-        metric = np.asarray(jax.vmap(self.task.metric)(out, ts))
-        value = float(np.mean(metric[ok])) if ok.any() else float("nan")
+        metric = np.asarray(jax.vmap(self.task.metric)(out, ts), dtype=float)
+        if not ok.all():  # a failed solve is scored, never left out (Task.failed_score)
+            rest = jax.vmap(self.task.metric, in_axes=(None, 0))(self._at_rest(self.state["params"]), ts)
+            metric = np.where(ok, metric, self.task.failed_score(metric, rest))
+        value = float(np.mean(metric))
         # is every converged state a physical object? (no inverted material, no wall through a wall)
         states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
+                  "over_converged": float(np.mean(metric[ok])) if ok.any() else None,
                   "stopped_inverting": int((status == INVERTS).sum()),  # of the failed, those the element bound stopped
                   **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
@@ -364,7 +376,8 @@ class Trainer:
                 self.logger.log(rec, step)
             if bar:
                 bar.update(1)
-                bar.set_postfix(loss=f"{rec['loss']:.4f}", s_per_step=f"{rec['seconds']:.2f}")
+                bar.set_postfix(loss="skipped" if rec["loss"] is None else f"{rec['loss']:.4f}",
+                                s_per_step=f"{rec['seconds']:.2f}")
             saved = step % self.cfg.checkpoint_every == 0 or step == self.cfg.steps
             if saved:
                 self.save()
