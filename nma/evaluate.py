@@ -34,6 +34,7 @@ register()
 def validate(cfg: DictConfig) -> EvaluateConfig:
     from .fidelity import resolve
     from .registry import LINEAR_SOLVERS
+    from .schema.physics import COMPRESSIBLE
     from .train.runs import load_run
     from .solver import linear  # noqa: F401  (register backends)
 
@@ -44,11 +45,8 @@ def validate(cfg: DictConfig) -> EvaluateConfig:
     fidelity = resolve(settings.fidelity, run.scene)
     if fidelity.inversion_barrier is None:  # auto: the model the run trained with
         fidelity = dataclasses.replace(fidelity, inversion_barrier=run.fidelity.inversion_barrier)
-    solver = settings.solver
-    if solver is not None:  # what it leaves to auto: as the run solved (its material decided those)
-        solver = dataclasses.replace(solver, **{k: getattr(run.solver, k) for k in ("corrector", "max_iters",
-                                                                                  "max_step_iters")
-                                                if getattr(solver, k) in (None, "auto")})
+    # what a stated solver leaves to auto: as the run solved (its material decided those)
+    solver = settings.solver and settings.solver.filled({k: getattr(run.solver, k) for k in COMPRESSIBLE.solver})
     return dataclasses.replace(settings, fidelity=fidelity, contact=contact, solver=solver)
 
 

@@ -39,8 +39,7 @@ def validate(cfg: DictConfig) -> SimulateConfig:
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    settings, _ = resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene)))
-    return settings
+    return resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene)))
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:

@@ -156,11 +156,16 @@ class SolverConfig(Schema):
         if self.warm_start and self.linear == "dense":  # the one traceable backend (nma.solver.linear)
             self.fail("warm_start", WARM_START_NEEDS_HOST)
 
+    def filled(self, choices: dict) -> "SolverConfig":
+        """These settings with what is left to auto (corrector "auto", iteration limits None) taken from
+        `choices` (a MaterialModel's solver, or another run's resolved settings)."""
+        return replace(self, **{k: v for k, v in choices.items() if getattr(self, k) in (None, "auto")})
+
     def newton(self) -> NewtonOptions:
         """Newton's own settings, handed to the solver; what is left to auto takes the compressible
         material's choice (Newton's defaults) unless resolve_auto decided it by the material."""
-        values = {f.name: getattr(self, f.name) for f in fields(NewtonOptions)}
-        return NewtonOptions(**{**values, **{k: v for k, v in COMPRESSIBLE.solver.items() if values[k] in (None, "auto")}})
+        resolved = self.filled(COMPRESSIBLE.solver)
+        return NewtonOptions(**{f.name: getattr(resolved, f.name) for f in fields(NewtonOptions)})
 
 
 @dataclass(frozen=True)
@@ -191,25 +196,17 @@ def material_model(nu: float) -> MaterialModel:
 def resolve_auto(settings):
     """Command settings (material, fidelity, solver, contact, scene) with every choice left to auto made:
     by the material's compressibility (material_model) and, for contact, by the scene where the material
-    leaves it open.  Stated choices are kept.  Returns (settings, what auto chose: {setting: value})."""
+    leaves it open.  Stated choices are kept."""
     model = material_model(settings.material.nu)
-    chosen = {}
-    material = settings.material
+    material, fidelity, contact = settings.material, settings.fidelity, settings.contact
     if material.formulation == "auto":
         material = replace(material, formulation=model.formulation)
-        chosen["material.formulation"] = model.formulation
-    solver_auto = {k: v for k, v in model.solver.items() if getattr(settings.solver, k) in (None, "auto")}
-    chosen.update({f"solver.{k}": v for k, v in solver_auto.items()})
-    fidelity = settings.fidelity
     if fidelity.inversion_barrier is None:
         fidelity = replace(fidelity, inversion_barrier=model.inversion_barrier)
-        chosen["fidelity.inversion_barrier"] = model.inversion_barrier
-    contact = settings.contact
     if contact.enabled is None:
         contact = replace(contact, enabled=bool(settings.scene.contact) if model.contact is None else model.contact)
-        chosen["contact.enabled"] = contact.enabled
-    return replace(settings, material=material, solver=replace(settings.solver, **solver_auto), fidelity=fidelity,
-                   contact=contact), chosen
+    return replace(settings, material=material, solver=settings.solver.filled(model.solver), fidelity=fidelity,
+                   contact=contact)
 
 
 def model_record(settings) -> dict:

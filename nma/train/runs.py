@@ -26,8 +26,7 @@ def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainCon
     TASKS.get(settings.task.factory)
     MODELS.get(settings.model.name)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    settings, _ = resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen)))
-    return settings
+    return resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen)))
 
 
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:

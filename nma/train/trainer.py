@@ -171,7 +171,7 @@ class Trainer:
             raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
                                                      f"are not finite, so nothing could be solved"))
         if n_ok == 0:
-            return self._skip_failed_step(step, ok, info, t0)
+            return self._skip_failed_step(step, info, t0)
         self._failed_in_a_row = 0
         warm = self.sim.warm_starts
         if warm is not None and warm.stopped and not self._warm_stop_said:
@@ -201,13 +201,12 @@ class Trainer:
                                                              f"steps in a row (in {groups or 'the loss'})"))
         return rec
 
-    def _skip_failed_step(self, step: int, ok, info, t0: float) -> dict:
+    def _skip_failed_step(self, step: int, info, t0: float) -> dict:
         """A step in which no sample of the batch converged has no gradient: it is skipped (the parameters
         and the optimiser's state stay as they were) and counted; trainer.max_failed_steps of them in a
         row stop the run, saying why the last batch's first sample failed."""
         self._failed_in_a_row += 1
-        local = int(np.flatnonzero(~np.asarray(ok))[0]) if not np.all(ok) else 0
-        first = jax.tree_util.tree_map(lambda a: np.asarray(a)[local], info)
+        first = jax.tree_util.tree_map(lambda a: np.asarray(a)[0], info)  # every sample failed
         if self._failed_in_a_row >= self.cfg.max_failed_steps:
             err = failure(first, f"step {step + 1}: no sample of the batch converged in {self._failed_in_a_row} "
                                  f"steps in a row (trainer.max_failed_steps); the last batch's first: ")
