@@ -7,6 +7,7 @@ metrics, wandb).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 from pathlib import Path
@@ -67,6 +68,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
              at_rest)
     log.info("run directory %s: figures in %s (%s), metrics in %s", run_dir, figures,
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
+    if task.next_step(run_dir):
+        log.info("next, from this run: %s", task.next_step(run_dir))
     if failed:
         log.warning(failed_solves(r))
     if r["invalid_states"]:
@@ -140,7 +143,8 @@ def main() -> None:
         check_run_dir(run_dir, settings.trainer.resume, "a sweep job's directory" if multirun else "hydra.run.dir")
         if settings.trainer.resume == "true":  # does the checkpoint fit?
             if found:
-                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings))
+                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings),
+                                             dataclasses.asdict(type(settings.optim)()))
 
     hydra_cfg = cli.preflight("config", check, sys.argv[1:], world.rank)
     if world.size > 1:

@@ -132,6 +132,10 @@ def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
         with pytest.raises(ConfigError) as no_hint:
             check_fingerprint("c", {"config": json.dumps(old)}, new)
         assert "add fidelity=paper" not in str(no_hint.value) and "add trainer.inversion_penalty" not in str(no_hint.value)
+    generic = {**today, "optim": {**today["optim"], "lr": 1e-3}}  # before translation had an optimiser of its own
+    with pytest.raises(ConfigError, match=r"optim.lr: 0.001 -> 0.01\) \(it trained with the generic optimiser: add "
+                                          r"optim=adam\)"):
+        check_fingerprint("c", {"config": json.dumps(generic)}, today, {**today["optim"], "lr": 1e-3})
 
 
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])

@@ -70,6 +70,8 @@ BAD_RUN = [
     ("task=strip_spread scene=strip task.goal=force task.points=[] task.group=middle",
      "task.group 'middle' is not an actuated group of scene strip; its groups are ['left', 'right']"),
     ("task=translation_spec scene=translation task.loss=l3", "task.loss must be one of ['l1', 'l2']"),
+    ("task=digital_mnist task.phase=finetune", "optim.lr must be in (0, 0.01] for task.phase=finetune, which trains "
+                                               "a network, got 0.3 (task=digital_mnist's rate is the lookup table's)"),
     ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "
                               "unknown): give its scene, scene=<one of ['digital_mnist',"),
 ]
@@ -384,6 +386,25 @@ def test_a_run_from_before_contact_auto_resolves_as_it_trained(tmp_path):
     assert now.contact.enabled is None and saved(tmp_path / "now", now).contact.enabled is True
     with pytest.raises(ValueError, match="contact=auto is decided by the scene"):
         build(ContactConfig, {"enabled": None}).settings()
+
+
+def test_a_task_brings_its_optimiser_and_a_reproduction_keeps_the_one_it_was_measured_with():
+    """task=<t> selects conf/optim/<t>.yaml, and its YAML spec the same one; optim=adam is the generic
+    optimiser; an experiment states its own over the generic one, whatever the task's is."""
+    from nma.schema import OptimConfig
+
+    def optim(*overrides):
+        return OmegaConf.to_container(compose_cfg(*overrides, "logger=none").optim)
+
+    generic = OmegaConf.to_container(OmegaConf.structured(OptimConfig))
+    single = optim("task=rotation_single")
+    assert (single["lr"], single["lr_scale"]["radii"]) == (3e-3, 10.0) and single["name"] == "adam"
+    assert optim("task=rotation_single_spec", "scene=rotation_single") == single
+    assert optim("task=rotation_single", "optim=adam") == generic
+    assert optim("task=rotation_single", "optim.lr=1e-4")["lr_scale"]["radii"] == 10.0  # a field over the task's
+    assert optim("task=strip_pore", "scene=strip") == generic  # a task without a file of its own
+    repro = optim("experiment=repro_rotation_single")
+    assert repro == {**generic, "lr": 2e-3, "schedule": "cosine", "lr_scale": {**generic["lr_scale"], "radii": 10.0}}
 
 
 @pytest.mark.parametrize("group", ["task", "solver", "fidelity", "contact", "model", "optim", "trainer", "logger",

@@ -1,6 +1,7 @@
 """Digital MNIST (paper Sec. 4.3): the seven-segment table, the window scores, the data split."""
 import socket
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -46,7 +47,7 @@ def test_mnist_split_is_stratified_deterministic_and_offline(monkeypatch):
 @pytest.fixture(scope="module")
 def task(simulator):
     sim = simulator("digital_mnist", quad_points=3)
-    return sim, digital_mnist(DigitalMNISTTask(eval_digits=8), sim)
+    return sim, digital_mnist(DigitalMNISTTask(phase="finetune", eval_digits=8), sim)
 
 
 def test_window_score_reads_the_colour_under_it(task):
@@ -110,6 +111,13 @@ def test_loss_and_metrics_follow_the_table(task):
     assert float(t.loss(jnp.full(7, 0.5), ts[0])) == 3.5
     off_by_one = perfect[1].at[5].set(0.9)  # the middle lit on a 1
     assert t.metric(perfect[1], ts[1]) == 1.0 and t.metric(off_by_one, ts[1]) == 0.0
-    extra = t.extra_metrics(jnp.stack([perfect[0], off_by_one]), ts, np.array([True, True]))
-    assert extra["digit_exact_match"] == 0.5 and extra["digit_segment_accuracy"] == pytest.approx(13 / 14)
+    shown = jnp.stack([perfect[0], off_by_one])
+    assert t.aggregate(jax.vmap(t.metric)(shown, ts)) == 0.5  # digit_exact_match: the mean
+    segments = jax.vmap(t.sample_metrics()["digit_segment_accuracy"])(shown, ts)
+    assert float(jnp.mean(segments)) == pytest.approx(13 / 14)
+    sim, _ = task
+    table = digital_mnist(DigitalMNISTTask(phase="lookup"), sim)
+    assert table.aggregate(np.array([1.0, 0.0, 1.0])) == 2.0  # lookup_digits_correct: of the ten, a count
+    assert table.next_step("r") == "python -m nma.run experiment=repro_mnist_fit task.lookup_run=r trainer.init_from=r"
+    assert t.next_step("r") is None  # finetune: the last phase
     assert t.decode(np.asarray(perfect[0])) == 3 and t.decode(np.asarray(off_by_one)) is None

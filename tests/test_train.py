@@ -89,12 +89,13 @@ def test_hdf5_fields_match_the_solution(translation_run):
 # slow: the fast suite trains translation end to end (the translation_run fixture) and checks each other
 # task's observations, loss and gradient on its own (test_tasks, test_shape_matching, test_digital_mnist)
 @pytest.mark.slow
-@pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", "task.eval_angles=3", "mean_angle_error_deg"),
-                                                      ("rotation_double", "task.eval_angles=3", "mean_angle_error_deg"),
-                                                      ("shape_matching", "task.eval_targets=3", "shape_error"),
-                                                      ("digital_mnist", "task.eval_digits=3", "digit_exact_match")])
+@pytest.mark.parametrize("task, eval_size, metric", [("rotation_single", ["task.eval_angles=3"], "mean_angle_error_deg"),
+                                                      ("rotation_double", ["task.eval_angles=3"], "mean_angle_error_deg"),
+                                                      ("shape_matching", ["task.eval_targets=3"], "shape_error"),
+                                                      ("digital_mnist", ["task.phase=finetune", "optim.lr=2e-4",
+                                                                         "task.eval_digits=3"], "digit_exact_match")])
 def test_every_task_trains_and_writes_its_artefacts(tmp_path, task, eval_size, metric):
-    train_in_process(tmp_path, f"task={task}", "logger=none", eval_size, *FAST[:-2], "fidelity=fast")
+    train_in_process(tmp_path, f"task={task}", "logger=none", *eval_size, *FAST[:-2], "fidelity=fast")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["metric"] == metric and len(metrics["per_sample"]) == 3
     assert np.all(np.isfinite(metrics["per_sample"]))

@@ -37,6 +37,8 @@ class TrainConfig:
                               f"each task runs on its scene of the same name")
         if hasattr(self.task, "check_scene"):
             self.task.check_scene(self.scene)
+        if hasattr(self.task, "check_optim"):
+            self.task.check_optim(self.optim)
 
 
 @dataclass

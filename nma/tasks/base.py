@@ -6,7 +6,9 @@ understands on a fixed evaluation set.  It knows the simulator only through `obs
 """
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 class Task:
@@ -53,14 +55,25 @@ class Task:
         equilibrium, at part of the load; NaN where there is none) and no actuation at all.  Both are
         states the structure does hold, and taking the worse means a failure never scores better than
         doing nothing, so a design gains nothing by failing the samples it cannot do."""
-        import numpy as np
-
         worse = np.fmin if self.higher_is_better else np.fmax  # fmin/fmax pass over a NaN
         return worse(np.asarray(reached, dtype=float), np.asarray(at_rest, dtype=float))
 
-    def extra_metrics(self, out: jnp.ndarray, ts: jnp.ndarray, ok) -> dict:
-        """Further evaluation numbers for metrics.json (name -> value)."""
+    def scored(self, fn, out, ts, ok, at_rest=None):
+        """fn(out, t) of every sample, a failed one (ok False) at failed_score against fn(at_rest, t):
+        a failed solve is scored, never left out."""
+        per = np.asarray(jax.vmap(fn)(out, ts), dtype=float)
+        if np.all(ok):
+            return per
+        return np.where(ok, per, self.failed_score(per, jax.vmap(fn, in_axes=(None, 0))(at_rest, ts)))
+
+    def sample_metrics(self) -> dict:
+        """Further numbers for metrics.json, name -> fn(out, t) of one sample, in the metric's direction:
+        each is scored as the metric is (a failed sample at failed_score) and averaged over every sample."""
         return {}
+
+    def aggregate(self, per_sample) -> float:
+        """The metric of a set of samples from each one's: their mean (a task that counts: their sum)."""
+        return float(np.mean(per_sample))
 
     def shown_target(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
         """The target where a figure draws it next to the observed output."""
@@ -87,6 +100,10 @@ class Task:
 
     sweep_fps = 1.0  # frames per second of the animation: slow for a sequence of separate samples
 
+    def next_step(self, run_dir) -> str | None:
+        """The command that continues from a finished run in run_dir (a task in phases: the next one)."""
+        return None
+
     def frozen_floor(self) -> tuple[float, str] | None:
         """The best metric the initial design can reach with its geometry frozen, where symmetry fixes
         it, with the reason in words; None where it is not known in closed form."""
@@ -94,10 +111,8 @@ class Task:
 
     def rest_metric(self, sim, mat) -> float:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
-        import jax
-
         geom = sim.init_params()
         X = sim.reference_points(geom)
         out = self.observe(sim, geom, X, jnp.zeros_like(X), mat)
-        return float(jnp.mean(jax.vmap(lambda t: self.metric(out, t))(self.eval_set())))
+        return self.aggregate(jax.vmap(lambda t: self.metric(out, t))(self.eval_set()))
 

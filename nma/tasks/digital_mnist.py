@@ -259,16 +259,23 @@ class DigitalMNIST(Task):
     def actuation_targets(self, t):
         return self.table[t[..., 0].astype(int)]
 
-    def extra_metrics(self, out, ts, ok):
-        ok = np.asarray(ok)
-        segments = np.asarray(jnp.mean((out > 0.5) == (self.targets(ts) > 0.5), axis=-1))
-        exact = np.asarray(self.metric(out, ts))
-        extra = {"digit_segment_accuracy": float(segments[ok].mean()) if ok.any() else float("nan")}
+    def next_step(self, run_dir):
         if self.lookup:
-            extra["lookup_digits_correct"] = int(exact[ok].sum())
-        else:
-            extra["digit_exact_match"] = float(exact[ok].mean()) if ok.any() else float("nan")
-        return extra
+            return (f"python -m nma.run experiment=repro_mnist_fit task.lookup_run={run_dir} "
+                    f"trainer.init_from={run_dir}")
+        if self.supervised:
+            return f"python -m nma.run experiment=repro_mnist_finetune trainer.init_from={run_dir}"
+        return None
+
+    def segment_accuracy(self, out, t):
+        """The fraction of the seven segments right (lit above 0.5 exactly where the digit needs it)."""
+        return jnp.mean((out > 0.5) == (self.targets(t) > 0.5))
+
+    def sample_metrics(self):
+        return {"digit_segment_accuracy": self.segment_accuracy}
+
+    def aggregate(self, per_sample):
+        return float(np.sum(per_sample)) if self.lookup else super().aggregate(per_sample)  # lookup: of ten
 
     def eval_set(self):
         return self._eval

@@ -80,7 +80,8 @@ class DigitalMNISTTask(TaskConfig):
     name: str = "digital_mnist"
     d_max: float = bounded(3.0, "(0, 5]")
     hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [300, 100, 100])
-    phase: str = choice("finetune", ("lookup", "fit", "finetune"))
+    phase: str = choice("lookup", ("lookup", "fit", "finetune"), doc="the paper's three, in order: the "
+                         "first needs no other run")
     windows: List[Any] = field(default_factory=_seven_windows)
     window_samples: int = bounded(5, "[2, 50]", doc="a window is sampled on this many points squared")
     colour_samples: int = bounded(25, "[2, 100]", doc="colour material points per patch side")
@@ -99,6 +100,16 @@ class DigitalMNISTTask(TaskConfig):
             self.fail("lookup_run", "must name the lookup phase's run directory when task.phase=fit")
         if self.reach < 2 * self.d_max + 2:
             self.fail("reach", f"must be at least 2 d_max + 2 = {2 * self.d_max + 2:g}", self.reach)
+
+    NETWORK_LR_MAX: ClassVar[float] = 0.01
+
+    def check_optim(self, optim) -> None:
+        """task=digital_mnist's optimiser (conf/optim/digital_mnist.yaml) moves a table of actuations
+        (the lookup phase); a network trained at that rate diverges."""
+        if self.phase != "lookup" and optim.lr > self.NETWORK_LR_MAX:
+            raise ConfigError(f"optim.lr must be in (0, {self.NETWORK_LR_MAX:g}] for task.phase={self.phase}, which "
+                              f"trains a network, got {optim.lr:g} (task=digital_mnist's rate is the lookup table's); "
+                              f"experiment=repro_mnist_{self.phase} sets the phase's own")
 
 
 GOALS = {  # goal -> (tracked points it needs: None any number, 0 none; the descriptor's dimension)

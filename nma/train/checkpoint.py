@@ -80,8 +80,9 @@ def _flatten(tree, prefix=""):
         yield prefix, tree
 
 
-def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
-    """Stop with the differing fields named if the checkpoint was written under another config."""
+def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: dict | None = None) -> None:
+    """Stop with the differing fields named if the checkpoint was written under another config
+    (`generic_optim`: the generic optimiser's settings, optim=adam, named where the run trained with it)."""
     if "config" not in raw:
         log.warning("checkpoint %s records no config; resuming without checking it", path)
         return
@@ -92,8 +93,9 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}" for k in sorted(changed)]
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
         # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
-        # Newton's element bound on, and the inversion penalty a term of every loss.  Each hint maps to the
-        # fields it explains; they are given only where together they explain every change.
+        # Newton's element bound on, the inversion penalty a term of every loss, and each task an optimiser
+        # of its own.  Each hint maps to the fields it explains; they are given only where together they
+        # explain every change.
         hints = {}
         contact = {k for k in changed if k.startswith("contact.")}
         if contact and not any(k.startswith("contact.") for k in old):
@@ -107,6 +109,9 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict) -> None:
         penalty = {"trainer.inversion_penalty", "trainer.inversion_margin"}
         if changed & penalty and not penalty & old.keys():
             hints["it trained without the inversion penalty: add trainer.inversion_penalty=0"] = changed & penalty
+        optim = {k for k in changed if k.startswith("optim.")}
+        if optim and generic_optim and all(old.get(k) == v for k, v in _flatten({"optim": generic_optim})):
+            hints["it trained with the generic optimiser: add optim=adam"] = optim
         hint = f" ({'; '.join(hints)})" if hints and changed <= set().union(*hints.values()) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("
                           + "; ".join(diff) + f"){hint}. Resume with the same settings, start a new run directory, "

@@ -17,7 +17,7 @@ import json
 import logging
 import signal
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -254,17 +254,16 @@ class Trainer:
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
         status = np.asarray(info.status)
         ok = status == CONVERGED
-        metric = np.asarray(jax.vmap(self.task.metric)(out, ts), dtype=float)
-        if not ok.all():  # a failed solve is scored, never left out (Task.failed_score)
-            rest = jax.vmap(self.task.metric, in_axes=(None, 0))(self._at_rest(self.state["params"]), ts)
-            metric = np.where(ok, metric, self.task.failed_score(metric, rest))
-        value = float(np.mean(metric))
+        rest = None if ok.all() else self._at_rest(self.state["params"])
+        metric = self.task.scored(self.task.metric, out, ts, ok, rest)
+        extras = {k: float(np.mean(self.task.scored(fn, out, ts, ok, rest)))
+                  for k, fn in self.task.sample_metrics().items()}
         # is every converged state a physical object? (no inverted material, no wall through a wall)
         states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
-        record = {"step": self.state["step"], self.task.metric_name: value, **self.task.extra_metrics(out, ts, ok),
+        record = {"step": self.state["step"], self.task.metric_name: self.task.aggregate(metric), **extras,
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
-                  "over_converged": float(np.mean(metric[ok])) if ok.any() else None,
+                  "over_converged": self.task.aggregate(metric[ok]) if ok.any() else None,
                   "stopped_inverting": int((status == INVERTS).sum()),  # of the failed, those the element bound stopped
                   **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
@@ -318,7 +317,7 @@ class Trainer:
             return False
         path, raw = found
         if self.cfg.resume != "force":
-            checkpoint.check_fingerprint(path, raw, self.fingerprint)
+            checkpoint.check_fingerprint(path, raw, self.fingerprint, asdict(type(self.ocfg)()))
         raw.setdefault("warm_audits", "[]")  # a checkpoint from before the tallies were kept
         try:
             restored = checkpoint.restore(raw, self._payload())
