@@ -52,7 +52,7 @@ def bench_scene(scene: str, repeats: int, option: str = "contact") -> dict:
     from nma.geometry.validity import StateChecker
     from nma.mechanics.contact import smallest_gap
     from nma.mechanics.material import material
-    from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
+    from nma.solver.warm import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
     mat = material(0.07, 0.3)
     d_max = config.load("task", scene)["d_max"]

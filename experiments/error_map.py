@@ -44,7 +44,7 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
     from nma.mechanics.material import material
     from nma.schema import Fidelity, scene_from_config
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED, failure
+    from nma.solver.status import Status, failure
     from nma.solver.options import NewtonOptions
 
     spec = scene_config(scene, unpinned)
@@ -57,7 +57,7 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
         X = sim.reference_points(geom)
         t0 = time.perf_counter()
         u, info = sim.equilibrium(X, jnp.asarray(d), material(0.07, 0.3))
-        if int(info.status) != CONVERGED:  # how far it got and why
+        if int(info.status) != Status.CONVERGED:  # how far it got and why
             raise SystemExit(str(failure(info, f"{scene} at {m} x 5, grading {grading:g}: ")))
         out["levels"][m] = {"reference": np.asarray(sample_positions(sim.disc, X, SAMPLES)),
                             "deformed": np.asarray(sample_positions(sim.disc, X + u, SAMPLES)),

@@ -147,7 +147,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
     from nma.registry import TASKS
     from nma.schema import TASK_SCHEMAS, Fidelity, build
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED
+    from nma.solver.status import Status
     from nma.solver.options import NewtonOptions
 
     ctrl, quad, rtol = setting
@@ -182,7 +182,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
             t0 = time.perf_counter()
             (_, (out, info, u)), (g_geom, g_d) = jax.block_until_ready(forward_grad(geom, ds[i], ts[i]))
             t_grad.append(time.perf_counter() - t0)
-            if int(info.status) != CONVERGED:
+            if int(info.status) != Status.CONVERGED:
                 failed.append({"draw": i, "load_reached": float(info.load), "residual": float(info.residual)})
             else:  # a converged state that cannot exist (material inverted, walls through each other)
                 state = checker.check(u)

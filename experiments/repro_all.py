@@ -7,7 +7,7 @@ One reproduction alone keeps a 2-core machine about 1.5 cores busy (the double r
 /usr/bin/time): a batch's samples end at different times and leave a thread idle, and a run's setup,
 evaluation and figures are serial.  Two lanes fill that, each run with one Newton thread
 (solver.workers=1) so that together they keep two.  What a run computes does not depend on its
-Newton threads (nma.solver.implicit), so each reproduction writes what it writes alone; the lanes
+Newton threads (nma.solver.batch), so each reproduction writes what it writes alone; the lanes
 change only when it finishes.  (Pinning each lane to one core would deadlock: a training step's
 compiled program calls back into the host Newton, whose kernels need a second thread of XLA's CPU pool.)
 Each lane runs its experiments in order; the lanes are balanced by the experiments' measured times

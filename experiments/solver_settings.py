@@ -45,7 +45,7 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
     from nma.geometry.validity import StateChecker
     from nma.mechanics.material import material
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED, STATUS_TEXT
+    from nma.solver.status import Status
 
     sims = {label(setting, v): Simulator.from_config(config.load("scene", scene), config.load("fidelity", "paper"),
                                                      {**(others or {}), setting: v}, {"enabled": False}, formulation)
@@ -67,10 +67,10 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
             t0 = time.perf_counter()
             u, info = jax.block_until_ready(solve(X, d, mat))
             seconds = time.perf_counter() - t0
-            converged = int(info.status) == CONVERGED
+            converged = int(info.status) == Status.CONVERGED
             states[c] = np.asarray(u) if converged else None
             record[c] = {"converged": converged, "iterations": int(info.iterations), "seconds": seconds,
-                         "load_reached": float(info.load), "status": STATUS_TEXT.get(int(info.status)),
+                         "load_reached": float(info.load), "status": Status.describe(info.status),
                          "physical": checker.check(np.asarray(u)).valid if converged else None,
                          "energy": float(sim.energy(X, u, mat)) if converged else None,
                          "negative_eigenvalues": sim.negative_eigenvalues(X, d, mat, u) if converged else None}
@@ -86,7 +86,7 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
 
 
 def table(records: list[dict], setting: str = "corrector") -> list[str]:
-    from nma.solver.implicit import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
+    from nma.solver.warm import SAME_EQUILIBRIUM  # one equilibrium: displacements this close, relative
 
     values = [label(setting, v) for v in SETTINGS[setting]]
     lines = [f"| scene | converged: {' / '.join(values)} | iterations, all solves | seconds, all solves | "

@@ -92,7 +92,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
     from nma.geometry.validity import StateChecker
     from nma.mechanics.material import material
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED, INVERTS, STATUS_TEXT
+    from nma.solver.status import Status
 
     rng = np.random.default_rng(seed)
     solver = {"escape_saddles": escape_saddles, "corrector": corrector, "element_bound": element_bound}
@@ -129,15 +129,15 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
         finite = bool(np.all(np.isfinite(np.asarray(u))) and np.isfinite(info.residual) and np.isfinite(info.load))
         # a converged state may be a saddle (e.g. a symmetric path past a buckling point): count its
         # unstable modes from the inertia of the Hessian there
-        unstable = sim.negative_eigenvalues(X, d, material(E, nu), u) if status == CONVERGED else None
+        unstable = sim.negative_eigenvalues(X, d, material(E, nu), u) if status == Status.CONVERGED else None
         # a converged state may not be a physical object (material inverted between Gauss points, a
         # wall through a wall): nma/geometry/validity.py
         # a stopped solve returns the last equilibrium it reached: its walls' compression is reported too
         checked = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if finite else None
-        state = checked if status == CONVERGED else None
+        state = checked if status == Status.CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
-                        "converged": status == CONVERGED, "status": STATUS_TEXT.get(status, str(status)),
-                        "inverts": status == INVERTS,
+                        "converged": status == Status.CONVERGED, "status": Status.describe(status),
+                        "inverts": status == Status.INVERTS,
                         "load_reached": float(info.load), "iterations": int(info.iterations),
                         "load_steps": int(info.load_steps), "cuts": int(info.cuts),
                         "residual": float(info.residual), "tolerance": float(info.tolerance),
@@ -282,7 +282,7 @@ def main():
     ap.add_argument("--formulation", default="displacement", choices=FORMULATIONS,
                     help="material.formulation (write to a separate --out to compare)")
     ap.add_argument("--nus", nargs="+", type=float, default=NUS, help="Poisson's ratios to map")
-    ap.add_argument("--corrector", default="line_search", choices=CORRECTORS,
+    ap.add_argument("--corrector", default="line_search", choices=CORRECTORS.names(),
                     help="solver.corrector (write to a separate --out to compare)")
     ap.add_argument("--max-iters", type=int, help="solver.max_iters, Newton's budget per solve (default: the solver's)")
     ap.add_argument("--max-step-iters", type=int,

@@ -198,17 +198,13 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .geometry.discretise import discretise
-    from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .mechanics.material import material
     from .train.runs import load_run
     from .simulator import Simulator
 
     settings, params, _ = load_run(run_dir)
-    sim = Simulator(discretise(scene_from_config(settings.scene), settings.fidelity, settings.contact.settings(),
-                               settings.material.formulation), settings.solver.linear,
-                    settings.solver.newton(), settings.solver.workers)
+    sim = Simulator.from_settings(settings)
     geom = _geometry(sim.disc, params, run_dir)
     X = np.asarray(sim.reference_points(geom))
     checker = StateChecker(sim.disc, X)

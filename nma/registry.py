@@ -1,4 +1,5 @@
-"""Name -> factory registries for the components chosen in YAML (tasks, models, linear solvers).
+"""Name -> factory registries for the components chosen in YAML (tasks, models, linear solvers,
+Newton's correctors).
 
 A factory is registered with its function, or declared by its import path ("module:attribute") and
 imported when first asked for: the config layer learns every task's name and schema without importing
@@ -51,11 +52,15 @@ class Registry(Generic[T]):
             self._items[name] = factory
         return factory
 
+    def names(self) -> list[str]:
+        """Every registered name, in order of registration."""
+        return list(self._items)
 
 
 TASKS: Registry = Registry("task.name")
 MODELS: Registry = Registry("model.name")
 LINEAR_SOLVERS: Registry = Registry("solver.linear")
+CORRECTORS: Registry = Registry("solver.corrector")  # nma.solver.correctors
 
 PLUGIN_GROUP = "nma.tasks"  # entry points of installed packages whose modules register tasks
 

@@ -49,7 +49,6 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from .geometry.discretise import discretise
     from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .io.fields import write_fields
@@ -60,8 +59,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     spec = scene_from_config(s.scene)
     mat = material(s.material.E, s.material.nu)
     t0 = time.perf_counter()
-    sim = Simulator(discretise(spec, s.fidelity, s.contact.settings(), s.material.formulation), s.solver.linear,
-                    s.solver.newton(), s.solver.workers)
+    sim = Simulator.from_settings(s)
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),

@@ -21,9 +21,10 @@ from .geometry.discretise import Discretisation, discretise
 from .schema import ContactConfig, Fidelity, SolverConfig, build, scene_config, scene_from_config
 from .mechanics.energy import quadrature, strain_energy
 from .runtime import available_cores
-from .solver.implicit import make_equilibrium, tangents_at
+from .solver.equations import Equations, tangents_at
+from .solver.implicit import make_equilibrium
 from .solver.linear import make_backend
-from .solver.newton import Equations, Equilibrium
+from .solver.status import Equilibrium
 from .solver.options import WARM_START_NEEDS_HOST, NewtonOptions
 
 
@@ -48,15 +49,27 @@ class Simulator:
         self._energy = jax.jit(lambda X, u, mat: strain_energy(disc, quadrature(disc, X), u, mat))
 
     @classmethod
+    def from_settings(cls, s, workers: int | None = None) -> "Simulator":
+        """A simulator from a command's checked settings: any object with scene, fidelity, contact,
+        material and solver as the commands check and resolve them (TrainConfig, SimulateConfig);
+        `workers` in place of solver.workers."""
+        return cls._build(s.scene, s.fidelity, s.contact, s.material.formulation, s.solver, workers)
+
+    @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
                     formulation: str = "displacement") -> "Simulator":
+        """A simulator from plain mappings, without Hydra: each checked as the commands check it, the
+        fidelity and contact resolved for the scene."""
         from .fidelity import resolve
 
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
-        disc = discretise(scene_from_config(scene), resolve(build(Fidelity, fidelity), scene),
-                          contact.resolved(scene).settings(), formulation)
-        return cls(disc, solver.linear, solver.newton(), solver.workers)
+        return cls._build(scene, resolve(build(Fidelity, fidelity), scene), contact.resolved(scene), formulation, solver)
+
+    @classmethod
+    def _build(cls, scene, fidelity, contact, formulation: str, solver, workers: int | None = None) -> "Simulator":
+        disc = discretise(scene_from_config(scene), fidelity, contact.settings(), formulation)
+        return cls(disc, solver.linear, solver.newton(), solver.workers if workers is None else workers)
 
     @property
     def n_actuations(self) -> int:
@@ -83,11 +96,39 @@ class Simulator:
         batch in lockstep (parallel on a GPU)."""
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
+    # -- the solver's state across solves (warm starts): what a trainer asks of it -------------------------
+    def cold_solves(self):
+        """A context in which every solve starts from rest (warm starts paused; nothing else without them)."""
+        return self.warm_starts.paused() if self.warm_starts is not None else contextlib.nullcontext()
+
+    def warm_starts_stopped(self) -> str:
+        """Why warm starts stopped for good (their audits found several equilibria), or ""."""
+        return self.warm_starts.stopped if self.warm_starts is not None else ""
+
+    def solver_record(self) -> dict | None:
+        """How the solves since the simulator was built started, and whether warm starts held (metrics)."""
+        warm = self.warm_starts
+        return None if warm is None else {**warm.stats, "other_equilibria": warm.other_equilibria}
+
+    def checkpoint_state(self) -> tuple[int, int] | None:
+        """What a checkpoint keeps of the solver, the warm starts' audit tallies, and nothing kept after:
+        a run resumed there solves as one not interrupted.  None without warm starts."""
+        if self.warm_starts is None:
+            return None
+        tallies = self.warm_starts.verdict
+        self.warm_starts.clear()
+        return tallies
+
+    def restore_checkpoint_state(self, tallies) -> None:
+        """Go on from a checkpoint's checkpoint_state()."""
+        if self.warm_starts is not None:
+            self.warm_starts.restore(*tallies)
+
     def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
         """Eager forward solve from rest, its result on the host. Unless it converged: raises SolverError
         (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
         d = self.check_actuation(d)
-        with self.warm_starts.paused() if self.warm_starts is not None else contextlib.nullcontext():
+        with self.cold_solves():
             eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
         if throw and not eq.converged:
             raise self.failure(eq, d, mat)

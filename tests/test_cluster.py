@@ -79,3 +79,15 @@ def test_the_whole_paper_runs_every_reproduction_once_in_lanes():
                for recipe in targets.values())
     for lanes in repro_all.LANES.values():
         assert sorted(name.replace("_", "-") for lane in lanes for name in lane) == sorted(targets)
+
+
+def test_a_reduced_record_keeps_its_names_and_shapes():
+    """World.allreduce_record: one Allreduce of a named record; each field comes back by name, in its
+    shape (the MPI sum itself: test_mpi_two_ranks_match_single_process)."""
+    from nma.train.mpi import World
+
+    record = {"grads": np.arange(6.0).reshape(2, 3), "loss": 1.5, "converged": np.int64(3)}
+    total = World().allreduce_record(record)
+    assert list(total) == ["grads", "loss", "converged"]
+    np.testing.assert_array_equal(total["grads"], record["grads"])
+    assert total["loss"].shape == () and float(total["loss"]) == 1.5 and float(total["converged"]) == 3.0

@@ -305,9 +305,9 @@ def test_the_users_situation_is_one_line_and_a_documented_exit_code(capsys, rais
 def test_a_solve_that_took_no_step_says_so_instead_of_a_zero_residual():
     import numpy as np
 
-    from nma.solver.newton import INCREMENT_TOO_SMALL, NewtonInfo, failure
+    from nma.solver.status import NewtonInfo, Status, failure
 
-    info = NewtonInfo(*(np.asarray(v) for v in (INCREMENT_TOO_SMALL, 12, 0, 14, 0.0, 0.0, 1e-12, [0.0])))
+    info = NewtonInfo(*(np.asarray(v) for v in (Status.INCREMENT_TOO_SMALL, 12, 0, 14, 0.0, 0.0, 1e-12, [0.0])))
     message = str(failure(info))
     assert "last residual" not in message and "no load increment beyond it could be taken" in message
 

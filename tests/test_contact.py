@@ -23,7 +23,8 @@ from nma.schema import ContactConfig, Fidelity, build
 from nma.simulator import Simulator
 from nma.solver.assembly import sparse_pattern
 from nma.solver.linear import DenseBackend
-from nma.solver import newton
+from nma.solver import loading
+from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
 CELL = {"name": "cell", "cells": "P", "radii_init": 0.8, "pinned": [[0, 0], [5, 0], [2.5, 0]],
@@ -105,12 +106,12 @@ def test_a_looser_path_reaches_the_same_touching_state_in_fewer_iterations(cell)
 def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
     """A load step's linearised response does not see the barrier until the walls are within d_hat, so
     its time of impact stops it short; the load then goes on without the free dofs
-    (newton._past_the_walls) and the correctors press the walls into contact at that load.  The same
+    (nma.solver.loading.past_the_walls) and the correctors press the walls into contact at that load.  The same
     touching state as a path whose load stops with the predictor (the code before), in fewer load steps."""
     sims, params, X, checker = cell
     d = jnp.array([CLOSED])
     on = sims[True].solve(params, d, MAT)
-    monkeypatch.setattr(newton, "_past_the_walls", lambda *args: jnp.zeros(()))
+    monkeypatch.setattr(loading, "past_the_walls", lambda *args: jnp.zeros(()))
     stopped = Simulator(sims[True].disc, "superlu", TIGHT).solve(params, d, MAT)  # new kernels, traced without it
     assert on.converged and stopped.converged and checker.check(on.u).valid
     assert int(on.info.load_steps) < int(stopped.info.load_steps)
@@ -141,7 +142,7 @@ def test_a_warm_start_whose_walls_cross_under_the_new_design_is_redone_from_rest
         cold = sims[True].equilibrium_batch(moved, d, MAT)
         assert stats["warm_solves"] - before["warm_solves"] == 1
         assert stats["warm_converged"] - before["warm_converged"] == int(not crosses)
-        assert int(eq.info.status[0]) == newton.CONVERGED and checker.check(eq.u[0]).valid
+        assert int(eq.info.status[0]) == Status.CONVERGED and checker.check(eq.u[0]).valid
         np.testing.assert_allclose(eq.u, cold.u, rtol=0, atol=1e-8 * float(jnp.abs(cold.u).max()))
 
 
@@ -196,7 +197,8 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     them; with room for all of them, the same blocks as with a slot for every block.  Newton that starts
     with too few slots asks again with more and ends on the same state (to round-off: each room is a
     program of its own)."""
-    from nma.solver import implicit
+    from nma.solver import host
+    from nma.solver.batch import HostBatches
 
     sim, params, X, u = touching
     disc, model = sim.disc, sim.disc.contact
@@ -214,10 +216,10 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     d = jnp.array([CLOSED])
     solved = {}
     for slots in (2, None):  # far fewer than touch; every block
-        monkeypatch.setattr(implicit, "CONTACT_SLOTS", slots or model.n_blocks)
-        newton = implicit.HostNewton(sim.equations, sim.backend, sim.options, workers=1)
-        u, info, _ = newton.forward_batch(X[None], d[None], MAT[None], keep=False)
-        assert int(info.status[0]) == implicit.CONVERGED
+        monkeypatch.setattr(host, "CONTACT_SLOTS", slots or model.n_blocks)
+        newton = host.HostNewton(sim.equations, sim.backend, sim.options)
+        u, info, _ = HostBatches(newton, workers=1).forward_batch(X[None], d[None], MAT[None], keep=False)
+        assert int(info.status[0]) == Status.CONVERGED
         solved[slots] = u[0], set(newton._kernels)
     rooms = solved[2][1]  # the rooms it took: 2, then 4x as much until they hold the near blocks
     assert 2 in rooms and max(rooms) >= near and rooms <= {min(2 * 4 ** k, model.n_blocks) for k in range(8)}
@@ -233,7 +235,7 @@ def test_the_traced_driver_reaches_the_same_touching_state(cell, touching):
     dense = Simulator(sim.disc, "dense", TIGHT)
     ds = jnp.array([[OPEN], [CLOSED]])
     (us, info) = jax.jit(jax.vmap(dense.equilibrium, in_axes=(None, 0, None)))(X, ds, MAT)
-    assert np.all(np.asarray(info.status) == newton.CONVERGED)
+    assert np.all(np.asarray(info.status) == Status.CONVERGED)
     np.testing.assert_allclose(us[1], u, rtol=0, atol=1e-8 * float(jnp.abs(u).max()))
     np.testing.assert_allclose(us[0], sims[False].solve(params, ds[0], MAT).u, rtol=0, atol=1e-8 * float(jnp.abs(u).max()))
 

@@ -8,7 +8,7 @@ from nma.schema import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
 from nma.errors import SolverError
-from nma.solver.newton import CONVERGED
+from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
 SMALL = {"name": "small", "cells": ["PP", "PP"], "pinned": [[0, 0], [10, 0], [10, 10], [0, 10]],
@@ -82,7 +82,7 @@ def test_status_is_returned_under_jit_without_nan():
     sim = Simulator(disc, "pardiso", NewtonOptions(max_iters=2))
     X = sim.reference_points(sim.init_params())
     u, info = jax.jit(sim.equilibrium)(X, jnp.array([2.0, 2.0]), material(0.07, 0.3))
-    assert int(info.status) != CONVERGED and np.all(np.isfinite(np.asarray(u)))
+    assert int(info.status) != Status.CONVERGED and np.all(np.isfinite(np.asarray(u)))
 
 
 def test_bad_actuation_is_rejected_before_work(simulator):
@@ -125,7 +125,7 @@ def test_the_dense_backend_batches_under_vmap_and_differentiates_as_the_host_doe
     ds = BACKEND_ACTUATIONS
     ref = [sims["superlu"].solve(disc.init_params(), d, mat).u for d in ds]
     u_batch, info = jax.jit(jax.vmap(sims["dense"].equilibrium, in_axes=(None, 0, None)))(X, ds, mat)
-    assert np.all(np.asarray(info.status) == CONVERGED)
+    assert np.all(np.asarray(info.status) == Status.CONVERGED)
     np.testing.assert_allclose(u_batch, np.stack(ref), atol=1e-9)
     # gradients through the batched dense solve match the host backend's adjoint
     loss = lambda eq: lambda X: jnp.sum(jax.vmap(lambda d: eq(X, d, mat)[0], )(ds)[:, :, 1] ** 2)
@@ -211,7 +211,7 @@ def test_heavily_damped_load_steps_are_cut_early_and_reach_the_same_equilibrium(
 def test_trust_region_corrector_reaches_the_same_equilibrium_in_fewer_iterations(simulator):
     """solver.corrector=trust_region, nearly incompressible (nu = 0.499) at full actuation, the case
     above: where the line search shortens the whole Newton step because a soft mode's part of it is
-    far too long, the trust region's shift damps that part only (nma/solver/newton.py, _trust_region).
+    far too long, the trust region's shift damps that part only (nma/solver/correctors.py, TrustRegion).
     It reaches the line search's equilibrium, in fewer iterations."""
     line_search = simulator("translation", quad_points=3)
     trust = Simulator(line_search.disc, "pardiso", NewtonOptions(corrector="trust_region"))
@@ -221,6 +221,34 @@ def test_trust_region_corrector_reaches_the_same_equilibrium_in_fewer_iterations
     assert sols["trust region"].info.iterations < sols["line search"].info.iterations
     X = np.asarray(trust.reference_points(trust.init_params()))
     np.testing.assert_allclose(X + sols["trust region"].u, X + sols["line search"].u, atol=1e-8)
+
+
+def test_a_third_corrector_registered_by_name_needs_no_edit_of_the_loop(monkeypatch):
+    """A corrector is an object with search / cut / next_shift (nma.solver.correctors), chosen by name
+    from nma.registry.CORRECTORS.  A trivial third one, the bounded Newton step always taken, runs in the
+    loop as it is; from a small actuation its full steps reach the line search's equilibrium."""
+    from nma.registry import CORRECTORS
+    from nma.solver.correctors import LineSearch
+
+    class FullStep(LineSearch):
+        def search(self, eqs, opts, kel, energy, u, step, E0, slope, a0):
+            return a0, jnp.isfinite(energy(u + a0 * step)), jnp.ones_like(slope), jnp.zeros_like(slope)
+
+    monkeypatch.setitem(CORRECTORS._items, "full_step", FullStep)
+    disc = discretise(scene_from_config(SMALL))
+    sims = {c: Simulator(disc, "superlu", NewtonOptions(corrector=c)) for c in ("line_search", "full_step")}
+    d, mat = jnp.array([1.0, -0.5]), material(0.07, 0.3)
+    sols = {c: sim.solve(sim.init_params(), d, mat) for c, sim in sims.items()}
+    assert sols["full_step"].converged and int(sols["full_step"].info.iterations) > 1
+    np.testing.assert_allclose(sols["full_step"].u, sols["line_search"].u, atol=1e-9)
+    with pytest.raises(ValueError, match="corrector must be one of .*'full_step'.*, got 'dogleg'"):
+        NewtonOptions(corrector="dogleg")
+
+
+def test_a_status_carries_its_words():
+    assert Status.CONVERGED.message == "converged" and Status(5) is Status.INVERTS
+    assert Status.describe(np.asarray(3)) == "the iteration limit solver.max_iters was reached"
+    assert Status.describe(99) == "status 99"
 
 
 def test_trust_region_solve_has_the_line_search_gradient():
@@ -243,7 +271,7 @@ def test_trust_region_ratio_of_a_quadratic_energy_is_one_and_round_off_is_taken(
     actual fall over its predicted fall is 1.  A step whose predicted fall is below the energy's
     round-off is taken where the energy does not rise beyond it, and counts as agreeing with the model
     (read as noise it would raise the shift just before convergence)."""
-    from nma.solver.newton import _trust_region
+    from nma.solver.correctors import _trust_region
 
     rng = np.random.default_rng(0)
     A = rng.standard_normal((6, 6))
@@ -280,14 +308,14 @@ def test_trust_region_traced_and_host_solves_agree():
 def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
     """PARDISO's LDL^T inertia against a dense eigendecomposition, on the Hessian at a converged state
     (stable: none negative) and on the same element blocks shifted down until many are negative."""
-    from nma.solver.implicit import tangents_at
+    from nma.solver.equations import tangents_at
     from nma.solver.linear import DenseBackend
 
     disc = discretise(scene_from_config(SMALL))
     sim = Simulator(disc, "pardiso")
     X, d, mat = sim.reference_points(sim.init_params()), jnp.array([1.0, 1.0]), material(0.07, 0.3)
     u, info = jax.jit(sim.equilibrium)(X, d, mat)
-    assert int(info.status) == CONVERGED and sim.negative_eigenvalues(X, d, mat, u) == 0
+    assert int(info.status) == Status.CONVERGED and sim.negative_eigenvalues(X, d, mat, u) == 0
     kel = tangents_at(sim.equations, X, d, mat, np.asarray(u).reshape(-1)[sim.equations.free])
     Ke = np.asarray(kel.elements)
     shifted = kel._replace(elements=Ke - np.median(np.abs(np.diagonal(Ke, axis1=1, axis2=2))) * np.eye(18))
@@ -304,14 +332,14 @@ def test_pardiso_refines_a_solve_only_where_its_factorisation_perturbed_a_pivot(
     pivots (MKL's PARDISO iparm reference)."""
     import scipy.sparse as sp
 
-    from nma.solver.implicit import tangents_at
+    from nma.solver.equations import tangents_at
     from nma.solver.linear import PardisoBackend
 
     disc = discretise(scene_from_config(SMALL))
     sim = Simulator(disc, "pardiso")
     X, d, mat = sim.reference_points(sim.init_params()), jnp.array([1.0, 1.0]), material(0.07, 0.3)
     u, info = jax.jit(sim.equilibrium)(X, d, mat)
-    assert int(info.status) == CONVERGED
+    assert int(info.status) == Status.CONVERGED
     kel = tangents_at(sim.equations, X, d, mat, np.asarray(u).reshape(-1)[sim.equations.free])
     rng = np.random.default_rng(0)
     hessian = sim.backend.pattern.matrix(kel)
@@ -399,7 +427,7 @@ def test_warm_starts_take_the_nearest_equilibrium_nearer_than_rest_and_audit_it(
     warm_audit-th warm solve is also solved cold; once more than a tenth of at least eight audits found
     another equilibrium, warm starts stop (and say why) for the rest of the run: clear() (a checkpoint)
     drops what is kept but not the run's tallies, which restore() puts back on resume."""
-    from nma.solver.implicit import Audit, WarmStarts
+    from nma.solver.warm import Audit, WarmStarts
 
     kept = WarmStarts(size=2, audit_every=2)
     for k, d in enumerate(([1.0, 0.0], [0.0, 1.0], [3.0, 3.0])):
@@ -471,9 +499,8 @@ def test_the_trust_region_stops_where_the_element_bound_holds_the_load(simulator
     trust-region corrector as with the line search: conftest.barrier_case ends with INVERTS, not by
     re-trying the same predictor up to the iteration limit."""
     from conftest import barrier_case
-    from nma.solver.newton import INVERTS
 
     radii, d = barrier_case()
     sim = simulator("translation", solver={"corrector": "trust_region"}, ctrl_per_patch=5, quad_points=2)
     eq = sim.solve({"radii": jnp.asarray(radii)}, jnp.asarray(d), material(0.07, 0.3), throw=False)
-    assert int(eq.info.status) == INVERTS and int(eq.info.iterations) < 50, eq.message
+    assert int(eq.info.status) == Status.INVERTS and int(eq.info.iterations) < 50, eq.message

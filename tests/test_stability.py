@@ -8,7 +8,7 @@ import pytest
 from experiments import stability_map
 from nma.geometry.validity import StateChecker
 from nma.mechanics.material import material
-from nma.solver.newton import INVERTS
+from nma.solver.status import Status
 
 CELLS = [  # scene, design, nu, actuation, whether its load path inverts material: what failed before and why
     # (the fast suite solves the translation cells; the other three are slow)
@@ -41,7 +41,7 @@ def test_map_cells_at_nu_up_to_0_49_converge(simulator, scene, design, nu, d, in
     if inverts:
         assert not StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(sol.u).valid
         bounded = simulator(scene).solve(params, jnp.asarray(d), mat, throw=False)
-        assert bounded.info.status == INVERTS and 0 < float(bounded.info.load) < 1
+        assert bounded.info.status == Status.INVERTS and 0 < float(bounded.info.load) < 1
 
 
 @pytest.mark.slow  # test_solver's extremes solve nu 0.499 and the mixed model's Cook's membrane is fast
@@ -55,7 +55,6 @@ def test_nearly_incompressible_mixed_model_converges_with_the_inversion_barrier(
     reaches full load, a physical object."""
     from nma import config
     from nma.simulator import Simulator
-    from nma.solver.newton import CONVERGED
 
     d, mat = jnp.asarray([4.0, 4.0]), material(stability_map.E, 0.499)
     outcomes = []
@@ -68,8 +67,8 @@ def test_nearly_incompressible_mixed_model_converges_with_the_inversion_barrier(
         state = StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u))
         outcomes.append((int(sol.info.status), float(sol.info.load), state.valid))
     (alone, alone_load, _), (barrier, barrier_load, valid) = outcomes
-    assert alone == INVERTS and alone_load < 1.0
-    assert barrier == CONVERGED and barrier_load == 1.0 and valid
+    assert alone == Status.INVERTS and alone_load < 1.0
+    assert barrier == Status.CONVERGED and barrier_load == 1.0 and valid
 
 
 @pytest.mark.slow

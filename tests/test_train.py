@@ -272,7 +272,7 @@ def test_a_step_whose_whole_batch_fails_is_skipped_counted_and_stops_the_run_onl
     from nma.mechanics.material import material
     from nma.models.mlp import mlp
     from nma.schema import OptimConfig, TrainerConfig, TranslationTask
-    from nma.solver.newton import ITERATION_LIMIT
+    from nma.solver.status import Status
     from nma.tasks.translation import translation
     from nma.train.trainer import Trainer
 
@@ -286,7 +286,7 @@ def test_a_step_whose_whole_batch_fails_is_skipped_counted_and_stops_the_run_onl
     def grad(params, ts):
         (loss, (ok, losses, status, info)), g = real(params, ts)
         if trainer.state["step"] + 1 in failing:
-            status = jnp.full_like(status, ITERATION_LIMIT)
+            status = jnp.full_like(status, Status.ITERATION_LIMIT)
             ok, info = status == 1, info._replace(status=status)
         return (loss, (ok, losses, status, info)), g
 

@@ -126,7 +126,7 @@ class SolverConfig(Schema):
     max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
                                     doc="heavily damped corrector steps in a row that cut the load step at once "
                                         "(Newton's model does not hold there)")
-    corrector: str = choice("auto", ("auto", *CORRECTORS),
+    corrector: str = choice("auto", ("auto", *CORRECTORS.names()),
                             doc="a corrector step at fixed load: the Newton step shortened by a line search, or "
                                 "a trust region on the energy's quadratic model (its diagonal shift adapted), "
                                 "which damps a soft mode's part of the step only (docs/stability.md); auto: by "

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..registry import CORRECTORS
 
-CORRECTORS = ("line_search", "trust_region")  # how a corrector step at fixed load is globalised (nma.solver.newton)
+
+CORRECTORS.declare("line_search", "nma.solver.correctors:LineSearch")  # how a corrector step at fixed load
+CORRECTORS.declare("trust_region", "nma.solver.correctors:TrustRegion")  # is globalised (nma.solver.correctors)
 WARM_START_NEEDS_HOST = ("needs a host linear solver (pardiso, superlu): solver.linear=dense solves a batch in "
                          "lockstep from rest")
 
@@ -30,11 +33,7 @@ class NewtonOptions:
     max_backtracks: int = 40
     damped_step: float = 0.1        # a corrector step shorter than this fraction of the Newton step is heavily damped
     max_damped_steps: int = 3       # heavily damped steps in a row that cut the load step at once
-    # line_search: the Newton step, shortened as a whole until the energy falls enough.  trust_region:
-    # the step of K + shift I, the shift raised where the energy's quadratic model did not predict the
-    # change and lowered where it did (Levenberg-Marquardt): a soft mode's part of the step is damped
-    # while the stiff part keeps Newton's (nma/solver/newton.py, _trust_region)
-    corrector: str = "line_search"
+    corrector: str = "line_search"  # a name in nma.registry.CORRECTORS (nma/solver/correctors.py)
     # contact's tangent in the corrector iterations whose last residual exceeded this fraction of the full
     # load's force scale (and in each load step's first): each barrier term's normal stiffness only, a
     # positive semi-definite matrix; below it, the exact Hessian (quadratic convergence, and the adjoint's)
@@ -59,5 +58,5 @@ class NewtonOptions:
     warm_audit: int = 16
 
     def __post_init__(self):
-        if self.corrector not in CORRECTORS:  # the config checks it too; library callers get the same words
-            raise ValueError(f"corrector must be one of {list(CORRECTORS)}, got {self.corrector!r}")
+        if self.corrector not in CORRECTORS.names():  # the config checks it too; library callers get the same words
+            raise ValueError(f"corrector must be one of {CORRECTORS.names()}, got {self.corrector!r}")

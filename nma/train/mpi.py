@@ -33,6 +33,13 @@ class World:
         self.comm.Allreduce(x, out, op=self._sum)
         return out
 
+    def allreduce_record(self, record: dict) -> dict:
+        """Every rank's record (name -> number or array) summed over the ranks, in one Allreduce."""
+        parts = {k: np.asarray(v, dtype=np.float64) for k, v in record.items()}
+        total = self.allreduce_sum(np.concatenate([v.ravel() for v in parts.values()]))
+        ends = np.cumsum([v.size for v in parts.values()])
+        return {k: piece.reshape(v.shape) for (k, v), piece in zip(parts.items(), np.split(total, ends[:-1]))}
+
     def bcast(self, obj):
         return obj if self.size == 1 else self.comm.bcast(obj, root=0)
 

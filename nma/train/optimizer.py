@@ -5,7 +5,7 @@ from typing import TYPE_CHECKING
 
 import optax
 
-from ..solver.newton import INVERTS
+from ..solver.status import Status
 
 if TYPE_CHECKING:
     from ..schema import OptimConfig
@@ -13,7 +13,7 @@ if TYPE_CHECKING:
 
 # What to change when the batches' solves keep failing, by the first failed sample's status
 FAILED_STEP_ADVICE = {
-    INVERTS: ("The actuations ask for states that invert the material between Gauss points: trainer.inversion_penalty "
+    Status.INVERTS: ("The actuations ask for states that invert the material between Gauss points: trainer.inversion_penalty "
               "steers the design away from them, a smaller actuation range (the task's d_max) or a finer "
               "fidelity (fidelity.ctrl_per_patch) gives the solve room"),
     None: ("Give Newton more room (solver.max_iters, solver.max_step_iters, solver.corrector=trust_region), "

@@ -165,8 +165,6 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     from ..runtime import configure_jax
 
     configure_jax()
-    from ..geometry.discretise import discretise
-    from ..schema import scene_from_config
     from ..mechanics.material import material
     from ..registry import MODELS, TASKS
     from ..simulator import Simulator
@@ -178,8 +176,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     world = world or World()
     # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
     workers = s.solver.workers or max(1, available_cores() // world.local_size)
-    sim = Simulator(discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings(), s.material.formulation),
-                    s.solver.linear, s.solver.newton(), workers)
+    sim = Simulator.from_settings(s, workers)
     task = TASKS.get(s.task.factory)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,

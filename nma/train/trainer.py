@@ -32,7 +32,7 @@ from ..geometry.validity import StateChecker, summarise
 from ..mechanics.energy import inversion_penalty
 if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads their fields only
     from ..schema import OptimConfig, TrainerConfig
-from ..solver.newton import CONVERGED, INVERTS, NONFINITE_INPUT, failure
+from ..solver.status import Status, failure
 from . import checkpoint
 from .optimizer import FAILED_STEP_ADVICE, make_optimizer
 from .mpi import World
@@ -137,10 +137,10 @@ class Trainer:
         if self.task.supervised:  # regress the actuations onto given ones; nothing to solve
             d = self.model.apply(params["net"], self.task.net_input(ts))
             losses = jnp.mean((d - self.task.actuation_targets(ts)) ** 2, axis=-1)
-            status = jnp.where(jnp.all(jnp.isfinite(d), axis=-1), CONVERGED, NONFINITE_INPUT)
-            return jnp.sum(losses), (status == CONVERGED, losses, status, None)
+            status = jnp.where(jnp.all(jnp.isfinite(d), axis=-1), Status.CONVERGED, Status.NONFINITE_INPUT)
+            return jnp.sum(losses), (status == Status.CONVERGED, losses, status, None)
         X, d, u, out, info = self._forward(params, ts)
-        ok = info.status == CONVERGED
+        ok = info.status == Status.CONVERGED
         losses = jax.vmap(self.task.loss)(out, ts)
         if self.cfg.inversion_penalty > 0:  # steer away from states that invert between Gauss points
             margin = self.cfg.inversion_margin
@@ -162,31 +162,29 @@ class Trainer:
         (loss_sum, (ok, _, status, info)), grads = self._grad(self.state["params"], ts)
         flat, unravel = ravel_pytree(grads)
         status = np.asarray(status)
-        local = np.concatenate([np.asarray(flat), [float(loss_sum), float(np.sum(ok)),
-                                                   float(np.sum(status == NONFINITE_INPUT)),
-                                                   float(np.sum(status == INVERTS))]])
-        total = self.world.allreduce_sum(local)
-        n_ok, n_nonfinite, n_inverts = (int(round(v)) for v in total[-3:])
+        total = self.world.allreduce_record({"grads": flat, "loss": float(loss_sum), "converged": np.sum(ok),
+                                             "nonfinite": np.sum(status == Status.NONFINITE_INPUT),
+                                             "inverts": np.sum(status == Status.INVERTS)})
+        n_ok, n_nonfinite, n_inverts = (int(round(float(total[k]))) for k in ("converged", "nonfinite", "inverts"))
         if n_nonfinite:
             raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
                                                      f"are not finite, so nothing could be solved"))
         if n_ok == 0:
             return self._skip_failed_step(step, info, t0)
         self._failed_in_a_row = 0
-        warm = self.sim.warm_starts
-        if warm is not None and warm.stopped and not self._warm_stop_said:
+        if self.sim.warm_starts_stopped() and not self._warm_stop_said:
             log.warning("step %d: warm starts stopped: %s; solves start from rest for the rest of the run",
-                        step + 1, warm.stopped)
+                        step + 1, self.sim.warm_starts_stopped())
             self._warm_stop_said = True
         if n_inverts and self.cfg.inversion_penalty == 0 and not self._inverts_said:
             log.warning("step %d: %d training solves stopped where the material would invert between Gauss points "
                         "(solver.element_bound); they give no gradient, so nothing steers the design away from "
                         "them: trainer.inversion_penalty does (docs/validity.md)", step + 1, n_inverts)
             self._inverts_said = True
-        mean_grads = unravel(jnp.asarray(total[:-4] / n_ok))
+        mean_grads = unravel(jnp.asarray(total["grads"] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
         self.state = {"params": params, "opt_state": opt_state, "step": step + 1}
-        rec = {"step": step + 1, "loss": float(total[-4] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
+        rec = {"step": step + 1, "loss": float(total["loss"] / n_ok), "failed_solves": self.cfg.batch_size - n_ok,
                "seconds": time.perf_counter() - t0}
         if n_inverts:  # of the failed solves, those the element bound stopped
             rec["stopped_inverting"] = n_inverts
@@ -253,7 +251,7 @@ class Trainer:
         ts = self.task.eval_set() if ts is None else ts
         X, d, u, out, info = self._evaluate(self.state["params"], ts)
         status = np.asarray(info.status)
-        ok = status == CONVERGED
+        ok = status == Status.CONVERGED
         rest = None if ok.all() else self._at_rest(self.state["params"])
         metric = self.task.scored(self.task.metric, out, ts, ok, rest)
         extras = {k: float(np.mean(self.task.scored(fn, out, ts, ok, rest)))
@@ -264,12 +262,11 @@ class Trainer:
         record = {"step": self.state["step"], self.task.metric_name: self.task.aggregate(metric), **extras,
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
                   "over_converged": self.task.aggregate(metric[ok]) if ok.any() else None,
-                  "stopped_inverting": int((status == INVERTS).sum()),  # of the failed, those the element bound stopped
+                  "stopped_inverting": int((status == Status.INVERTS).sum()),  # of the failed, those the element bound stopped
                   **summarise(states), "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
-        warm = self.sim.warm_starts
-        if warm is not None:  # how the run's solves started, and whether warm starts held
-            record["warm_starts"] = {**warm.stats, "other_equilibria": warm.other_equilibria}
+        if self.sim.solver_record() is not None:  # how the run's solves started, and whether warm starts held
+            record["warm_starts"] = self.sim.solver_record()
         return Evaluation(record, X, d, u, out, ts, ok, states)
 
     # -- the loop ---------------------------------------------------------------------------------------
@@ -294,18 +291,16 @@ class Trainer:
                 "warm_audits": json.dumps(list(warm_audits))}
 
     def _warm_audits(self) -> list[list[int]]:
-        """Every rank's warm-start audit tallies (WarmStarts.verdict), [] without warm starts."""
-        warm = self.sim.warm_starts
-        if warm is None:
+        """Every rank's solver state for a checkpoint (Simulator.checkpoint_state), [] without any."""
+        tallies = self.sim.checkpoint_state()
+        if tallies is None:
             return []
         mine = np.zeros((self.world.size, 2))
-        mine[self.world.rank] = warm.verdict
+        mine[self.world.rank] = tallies
         return np.rint(self.world.allreduce_sum(mine.ravel())).astype(int).reshape(-1, 2).tolist()
 
     def save(self):
         warm_audits = self._warm_audits()
-        if self.sim.warm_starts is not None:  # a run resumed here starts as this one goes on: nothing kept
-            self.sim.warm_starts.clear()
         if self.world.is_root:
             checkpoint.save(self.checkpoint_dir(), self.state["step"], self._payload(warm_audits))
 
@@ -327,8 +322,8 @@ class Trainer:
         self.history = json.loads(restored.pop("history"))
         restored.pop("config")
         warm_audits = json.loads(restored.pop("warm_audits"))
-        if self.sim.warm_starts is not None and len(warm_audits) == self.world.size:
-            self.sim.warm_starts.restore(*warm_audits[self.world.rank])
+        if len(warm_audits) == self.world.size:
+            self.sim.restore_checkpoint_state(warm_audits[self.world.rank])
         step = int(restored.pop("step"))
         self.state = {**jax.tree_util.tree_map(jnp.asarray, restored), "step": step}
         log.info("resumed from %s at step %d", path, self.state["step"])
@@ -391,8 +386,5 @@ class Trainer:
         """The run's metric: every evaluation sample (or the descriptors `ts`), each solved from rest (warm
         starts paused), so that it means what a cold solve of the design means, however training started
         its solves."""
-        warm = self.sim.warm_starts
-        if warm is None:
-            return self.evaluate(ts)
-        with warm.paused():
+        with self.sim.cold_solves():
             return self.evaluate(ts)

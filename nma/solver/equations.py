@@ -1,0 +1,138 @@
+"""The discrete equilibrium equations of one scene (Equations: potential, residual, tangents and their
+blocks; at a state, its energy, tangents and the adjoint's pullback), one solve's data (Problem:
+quadrature, boundary path, material) and Newton's iterate (State)."""
+from __future__ import annotations
+
+import copy
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..geometry.discretise import Discretisation
+from ..mechanics.energy import Quadrature, Tangents, energy_force_tangents, quadrature, strain_energy
+from .assembly import element_dofs
+
+
+class Equations:
+    """The discrete equilibrium equations of one scene: everything Newton and the adjoint need.
+    `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
+
+    def __init__(self, disc: Discretisation, contact_slots: int | None = None):
+        self.disc = disc
+        self.contact_slots = contact_slots
+        self.free = jnp.asarray(disc.free_dofs)
+        self.dirichlet = jnp.asarray(disc.dirichlet_dofs)
+        self.A = jnp.asarray(disc.actuation_matrix)
+        self.f_ext = jnp.asarray(disc.external_force)
+        self.f_free = self.f_ext[self.free]
+        self.edofs = jnp.asarray(element_dofs(disc))
+        self.elements = disc.elem_points.reshape(-1, 9).shape[0]
+
+    def with_contact_slots(self, slots: int | None) -> "Equations":
+        """The same equations, their linearisations with room for `slots` contact blocks."""
+        other = copy.copy(self)
+        other.contact_slots = slots
+        return other
+
+    def full(self, u_free, u_dir):
+        """Every control point's displacement from the free DOFs and the prescribed ones."""
+        u = jnp.zeros(2 * self.disc.n_points, u_free.dtype)
+        return u.at[self.free].set(u_free).at[self.dirichlet].set(u_dir).reshape(-1, 2)
+
+    def potential(self, quad, u_free, u_dir, load, mat):
+        """Strain energy less the work of the dead load at load factor `load`."""
+        u = self.full(u_free, u_dir)
+        return strain_energy(self.disc, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
+
+    def residual(self, quad, u_free, u_dir, load, mat):
+        return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat)
+
+    def linearise(self, quad, u_free, u_dir, load, mat, contact_normal=False):
+        """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks of
+        its normal stiffness only, nma.mechanics.contact.force_and_blocks)."""
+        u = self.full(u_free, u_dir)
+        energy, force, kel = energy_force_tangents(self.disc, quad, u, mat, contact_normal, self.contact_slots)
+        potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
+        return potential, force.reshape(-1)[self.free] - load * self.f_free, kel
+
+    def blocks(self, kel: Tangents):
+        """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty slot's
+        block is zero)."""
+        contact = self.edofs[self.elements + jnp.maximum(kel.which, 0)]
+        return (self.edofs[:self.elements], kel.elements), (contact, kel.contact)
+
+    def curvature(self, kel: Tangents, v_free):
+        """v^T K_ff v: the energy's second derivative along the free-dof direction v."""
+        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.free].set(v_free)
+        return sum(jnp.einsum("ea,eab,eb->", v[dofs], K, v[dofs]) for dofs, K in self.blocks(kel))
+
+    def coupling(self, kel: Tangents, u_D):
+        """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
+        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.dirichlet].set(u_D)
+        f = jnp.zeros_like(v)
+        for dofs, K in self.blocks(kel):
+            f = f.at[dofs].add(jnp.einsum("eab,eb->ea", K, v[dofs]))
+        return f[self.free]
+
+
+def energy_at(eqs: Equations, X, d, mat, u_free):
+    """The potential energy of a state at full load."""
+    return eqs.potential(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
+
+
+def tangents_at(eqs: Equations, X, d, mat, u_free):
+    """The Tangents at a converged state (the adjoint's matrix)."""
+    return energy_force_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat,
+                                 capacity=eqs.contact_slots)[2]
+
+
+def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
+    """(X, d, mat)_bar = -adjoint^T dR_f/d(X, d, mat) at fixed free displacements."""
+    def residual(X, d, mat):
+        return eqs.residual(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
+
+    return jax.vjp(residual, X, d, mat)[1](-adjoint)
+
+
+class Problem(NamedTuple):
+    """What one solve needs besides the state: the design's quadrature, the boundary data, the material.
+    The load path runs from the start (load factor 0) to the target (1): the prescribed displacements
+    from u_D0 to u_D and the dead load's factor from load0 to 1.  A cold solve starts at rest (u_D0 = 0,
+    load0 = 0); a warm one at another sample's equilibrium (its u_D0, the full dead load)."""
+    quad: Quadrature
+    u_D: jnp.ndarray
+    mat: jnp.ndarray
+    size: jnp.ndarray
+    u_D0: jnp.ndarray
+    load0: jnp.ndarray
+
+    def boundary(self, lam):
+        return self.u_D0 + lam * (self.u_D - self.u_D0)
+
+    def load(self, lam):
+        return self.load0 + lam * (1.0 - self.load0)
+
+
+class State(NamedTuple):
+    """Newton's iterate and its bookkeeping, through the load steps (built by keyword: newton.setup)."""
+    u: jnp.ndarray          # the free dofs' displacement
+    lam: jnp.ndarray        # the load factor, 0 at the start of the path and 1 at its end
+    u_conv: jnp.ndarray     # the last converged load step's u and lam: where a cut returns to
+    lam_conv: jnp.ndarray
+    dlam: jnp.ndarray       # the load increment
+    predictor: jnp.ndarray  # the next step is a load step's predictor (else a corrector at fixed load)
+    shift: jnp.ndarray      # the diagonal shift of the next step's matrix, K + shift I
+    it: jnp.ndarray         # iterations so far
+    step_it: jnp.ndarray    # corrector iterations in this load step
+    steps: jnp.ndarray      # converged load steps
+    cuts: jnp.ndarray       # failed load steps (each halved its increment)
+    status: jnp.ndarray     # a nma.solver.status.Status
+    tol: jnp.ndarray        # the residual that converges the solve (0 until the scales are known)
+    k_ref: jnp.ndarray      # the stiffness scale (the largest diagonal entry at rest)
+    rnorm: jnp.ndarray      # ||g_f|| at the last linearisation
+    history: jnp.ndarray    # rnorm per iteration, nan past the last
+    damped: jnp.ndarray   # heavily damped corrector steps (trust region: rejected steps) in a row in this load step
+    shift_memory: jnp.ndarray  # the last diagonal shift that gave a descent direction in this solve
+    f_ref: jnp.ndarray    # the force scale of the full load (the tolerance is rtol times it, plus atol's)
+    inverting: jnp.ndarray  # since the last converged load step, a step was stopped short by the check points

@@ -1,0 +1,112 @@
+"""How a Newton solve ended: the status enumeration with its words, the solve's statistics
+(NewtonInfo), what a solve returns (Equilibrium) and the error of a failed one."""
+from __future__ import annotations
+
+import enum
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import SolverError
+from ..mechanics.options import NEARLY_INCOMPRESSIBLE
+
+
+class Status(enum.IntEnum):
+    """A solve's status; an int inside traced code (jnp.where takes the members as they are)."""
+    RUNNING = 0
+    CONVERGED = 1
+    INCREMENT_TOO_SMALL = 2
+    ITERATION_LIMIT = 3
+    NONFINITE_INPUT = 4
+    INVERTS = 5
+    WALLS_CROSS = 6
+
+    @property
+    def message(self) -> str:
+        return _MESSAGES[self]
+
+    @classmethod
+    def describe(cls, status) -> str:
+        """The words of a status given as a number (an unknown one by its number)."""
+        return cls(int(status)).message if int(status) in cls._value2member_map_ else f"status {int(status)}"
+
+
+_MESSAGES = {
+    Status.RUNNING: "still running",
+    Status.CONVERGED: "converged",
+    Status.INCREMENT_TOO_SMALL: "the load increment fell below solver.min_increment",
+    Status.ITERATION_LIMIT: "the iteration limit solver.max_iters was reached",
+    Status.NONFINITE_INPUT: "its input (geometry, actuation or material) is not finite; nothing was solved",
+    Status.INVERTS: ("the load increment fell below solver.min_increment where the material would invert between "
+                     "Gauss points (det F at an element's 4 x 4 check points, which solver.element_bound keeps "
+                     "positive; without the bound the solve may go on to a state inverted there, not a physical "
+                     "object)"),
+    Status.WALLS_CROSS: ("a warm start whose pores' walls cross each other under this design (it moved since that "
+                         "equilibrium was kept); such a start is redone from rest"),
+}
+
+
+class NewtonInfo(NamedTuple):
+    status: jnp.ndarray
+    iterations: jnp.ndarray
+    load_steps: jnp.ndarray
+    cuts: jnp.ndarray
+    load: jnp.ndarray             # load factor of the last converged state
+    residual: jnp.ndarray         # ||g_f|| at the last iterate
+    tolerance: jnp.ndarray
+    residual_history: jnp.ndarray  # (max_iters,), nan past the last iteration
+
+
+class Equilibrium(NamedTuple):
+    """What a solve returns: the displacement of every control point and how Newton got there (its
+    status, statistics and residual history).  A pytree, so traced, batched (vmap: every field gains
+    the batch axis) and differentiated solves return it too; `u, info = equilibrium` unpacks it.  The
+    host-side properties read a solved one; a failed solve's error says how far it got and why."""
+    u: jnp.ndarray     # (n_points, 2); of a failed solve, its last converged state (at load info.load)
+    info: NewtonInfo
+
+    @property
+    def converged(self) -> np.ndarray:
+        """Whether the solve reached full load (per sample of a batch)."""
+        return np.asarray(self.info.status) == Status.CONVERGED
+
+    @property
+    def message(self) -> str:
+        """The status in words (one solve)."""
+        return Status.describe(self.info.status)
+
+    def error(self, context: str = "", nu: float | None = None) -> SolverError | None:
+        """None where converged, else the error of the failed solve (of the first failed sample of a
+        batch), `context` saying which solve it was."""
+        status = np.asarray(self.info.status)
+        if status.ndim == 0:
+            return None if int(status) == Status.CONVERGED else failure(self.info, context, nu)
+        failed = np.flatnonzero(status != Status.CONVERGED)
+        if not failed.size:
+            return None
+        i = int(failed[0])
+        return failure(jax.tree_util.tree_map(lambda a: np.asarray(a)[i], self.info), f"{context}sample {i}: ", nu)
+
+
+def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> SolverError:
+    """The error of one failed solve: how far it got and why."""
+    status = int(info.status)
+    msg = (f"{context}Newton solve failed: {Status.describe(status)}; converged up to load factor "
+           f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
+           f"load steps and {int(info.cuts)} cuts; ")
+    if status == Status.NONFINITE_INPUT:
+        msg = f"{context}Newton solve failed: {Status.NONFINITE_INPUT.message}"
+    elif float(info.residual) == 0.0:  # no corrector iterate was measured: say what happened instead
+        msg += "no load increment beyond it could be taken (each was cut down to solver.min_increment)"
+    else:
+        msg += f"last residual {float(info.residual):.3e} (tolerance {float(info.tolerance):.3e})"
+    if nu is not None and nu >= NEARLY_INCOMPRESSIBLE and status == Status.ITERATION_LIMIT:
+        msg += (f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
+                f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): Newton needs several times the usual iterations "
+                f"there; the commands' auto settings model it locking-free (material.formulation=mixed, "
+                f"solver.corrector=trust_region, solver.max_step_iters=300, solver.max_iters=1000, "
+                f"fidelity.inversion_barrier=0.5, contact on): leave those to auto, raise solver.max_iters, "
+                f"or lower nu")
+    return SolverError(msg, info)
