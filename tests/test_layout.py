@@ -108,3 +108,9 @@ def test_every_declared_task_imports_and_a_broken_declaration_names_itself():
         broken.get("lost")
     with pytest.raises(ValueError, match="'module:attribute'"):
         broken.declare("pathless", "nma.tasks.spec")
+
+
+def test_no_module_holds_more_than_a_reader_can_keep_in_mind():
+    """Every module of nma/ is at most 400 lines: a module over that does several jobs (split it)."""
+    long = {module_name(p): n for p in (ROOT / "nma").rglob("*.py") if (n := len(p.read_text().splitlines())) > 400}
+    assert not long, long

@@ -198,10 +198,7 @@ def _box_gaps(model: ContactModel, v: jnp.ndarray) -> jnp.ndarray:
     return jnp.sqrt(jnp.sum(apart * apart, -1))
 
 
-# blocks per chunk of the broad phase's loop: a few near blocks (the usual case) cost one small chunk, and
-# the work grows with the near blocks only.  Measured on the double rotation at 8 x 2 (12,096 blocks, 146
-# near in contact), the tangent blocks alone: 5.6 ms with chunks of 32, 12 ms with 64, 26 ms with 756 (n / 16)
-NEAR_CHUNK = 32
+NEAR_CHUNK = 32  # blocks per chunk of the broad phase's loop: the work grows with the near blocks only
 
 
 def _over_near(model: ContactModel, near: jnp.ndarray, step, init):
