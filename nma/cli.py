@@ -38,7 +38,7 @@ BAD_INPUT, FAILED, SYSTEM = 2, 1, 3
 MAX_SWEEP_CHECKS = 256
 
 
-def _say(message: str, rank: int = 0) -> None:
+def say(message: str, rank: int = 0) -> None:
     if rank == 0:
         print(f"error: {message}", file=sys.stderr, flush=True)
 
@@ -126,20 +126,22 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                     try:
                         writable_dir(Path(cfg.hydra.run.dir), _run_dir_name(cfg))
                     except PermissionError as exc:  # the system refuses the run directory: nothing has run
-                        _say(_os_error(exc), rank)
+                        say(_os_error(exc), rank)
                         sys.exit(SYSTEM)
+                    if rank == 0:  # before Hydra writes there (a sweep's jobs each take theirs as they start)
+                        hold_run_dir(Path(cfg.hydra.run.dir), _run_dir_name(cfg))
                 first = first if first is not None else cfg.hydra
             except Exception as exc:  # composition and validation errors only: nothing has run
                 bad.setdefault(_bad_input(exc, overrides), []).append(" ".join(overrides[i] for i in varying))
     except KeyboardInterrupt:
-        _say("interrupted (Ctrl-C)", rank)
+        say("interrupted (Ctrl-C)", rank)
         sys.exit(128 + signal.SIGINT)
     except Exception as exc:  # the command line itself does not parse
-        _say(_bad_input(exc, args.overrides), rank)
+        say(_bad_input(exc, args.overrides), rank)
         sys.exit(BAD_INPUT)
     if bad:  # every bad job of a sweep at once, each message once
         for message, where in bad.items():
-            _say(message if not args.multirun else
+            say(message if not args.multirun else
                  f"{message} (in {len(where)} of {len(jobs)} jobs, e.g. {where[0] or 'every job'})", rank)
         sys.exit(BAD_INPUT)
     return first
@@ -206,11 +208,45 @@ def writable_dir(path: Path, what: str) -> None:
 
 
 def _remove_if_empty(run_dir: Path | None) -> None:
-    """A run directory holding only what Hydra wrote on start (.hydra/, the job's log) goes again."""
+    """A run directory holding only what Hydra wrote on start (.hydra/, the job's log) and its lock goes
+    again."""
     if run_dir is None or not run_dir.is_dir():
         return
-    if all(p.name == ".hydra" or p.suffix == ".log" for p in run_dir.iterdir()):
+    if (run_dir / RUN_LOCK).exists() and run_dir.resolve() not in _held:  # another process's directory
+        return
+    if all(p.name in (".hydra", RUN_LOCK) or p.suffix == ".log" for p in run_dir.iterdir()):
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+RUN_LOCK = ".lock"  # in a run directory: held by the process that writes there
+_held: dict[Path, object] = {}  # the run directories this process holds, their lock files open until it ends
+
+
+def hold_run_dir(run_dir: Path, what: str = "hydra.run.dir") -> None:
+    """One process writes a run directory: an exclusive lock on its RUN_LOCK file, held until this
+    process ends (an operating-system lock: a killed run leaves none behind).  A directory another
+    process holds is refused, naming that process."""
+    import fcntl
+
+    run_dir = Path(run_dir).resolve()
+    if run_dir in _held:
+        return
+    run_dir.mkdir(parents=True, exist_ok=True)
+    lock = open(run_dir / RUN_LOCK, "a+")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        holder = lock.read().strip() or "another process"
+        lock.close()
+        raise ConfigError(f"{what}={run_dir} is in use by {holder}: two runs writing one directory would mix "
+                          f"their checkpoints, metrics and logs; wait for it to end, or give this run another "
+                          f"directory") from None
+    lock.seek(0)
+    lock.truncate()
+    lock.write(f"process {os.getpid()} on {socket.gethostname()} (since {time.strftime('%Y-%m-%d %H:%M:%S')})\n")
+    lock.flush()
+    _held[run_dir] = lock
 
 
 def _os_error(err: OSError) -> str:
@@ -221,26 +257,29 @@ def _os_error(err: OSError) -> str:
 @contextmanager
 def exit_codes(rank: int = 0, run_dir: Path | None = None):
     """Inside a command's task function: each outcome a user can act on as one line and its exit code
-    (the module's table); on bad input, `run_dir` is removed if the command left nothing in it."""
+    (the module's table); on bad input, `run_dir` is removed if the command left nothing in it.  The
+    SystemExit carries the line too (`.message`), for a sweep that records its failed jobs."""
     try:
         yield
     except ConfigError as err:
-        _say(str(err), rank)
         if rank == 0:
             _remove_if_empty(run_dir)
-        sys.exit(BAD_INPUT)
+        _exit(str(err), BAD_INPUT, rank)
     except (SolverError, TrainingError) as err:
-        _say(str(err), rank)
-        sys.exit(FAILED)
+        _exit(str(err), FAILED, rank)
     except Stopped as err:
-        _say(str(err), rank)
-        sys.exit(128 + err.signum)
+        _exit(str(err), 128 + err.signum, rank)
     except KeyboardInterrupt:
-        _say("interrupted (Ctrl-C)", rank)
-        sys.exit(128 + signal.SIGINT)
+        _exit("interrupted (Ctrl-C)", 128 + signal.SIGINT, rank)
     except OSError as err:
-        _say(_os_error(err), rank)
-        sys.exit(SYSTEM)
+        _exit(_os_error(err), SYSTEM, rank)
+
+
+def _exit(message: str, code: int, rank: int):
+    say(message, rank)
+    stop = SystemExit(code)
+    stop.message = message
+    raise stop from None
 
 
 @contextmanager

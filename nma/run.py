@@ -8,6 +8,7 @@ metrics, wandb).
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import sys
 from pathlib import Path
@@ -15,10 +16,11 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from . import cli
+from . import cli, sweep
 from .config import CONF_DIR
 from .schema import TrainConfig, register
 from .schema.physics import describe_model, model_record
+from .sweep import FAILED_JOB
 from .train.runs import (check_init_from, check_run_dir, chosen_fidelity, fidelity_record, fingerprint, make_trainer,
                          validate)
 
@@ -107,15 +109,28 @@ def validate_in(cfg: DictConfig, run_dir: Path):
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
+    from hydra.types import RunMode
     from omegaconf import OmegaConf
 
     from .train.mpi import World
 
-    run_dir = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    with cli.exit_codes(World().rank, run_dir):
-        settings = validate_in(cfg, run_dir)[0]
-        with cli.stop_on_signals(settings.trainer.stop_grace) as stop:
-            train(settings, run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
+    hydra_cfg = hydra.core.hydra_config.HydraConfig.get()
+    run_dir, in_sweep = Path(hydra_cfg.runtime.output_dir), hydra_cfg.mode == RunMode.MULTIRUN
+    world = World()
+    try:
+        with cli.exit_codes(world.rank, None if in_sweep else run_dir):
+            if world.is_root:
+                cli.hold_run_dir(run_dir, "this job's directory")
+            settings = validate_in(cfg, run_dir)[0]
+            with cli.stop_on_signals(settings.trainer.stop_grace) as stop:
+                train(settings, run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
+    except SystemExit as exit_:
+        if not (in_sweep and 0 < int(exit_.code or 0) < 128):  # a signal stops the sweep too
+            raise
+        # one failed job is recorded (the sweep's summary lists it) and the sweep goes on
+        if world.is_root:
+            record = {"exit_code": exit_.code, "error": getattr(exit_, "message", "")}
+            (run_dir / FAILED_JOB).write_text(json.dumps(record, indent=1))
 
 
 def main() -> None:
@@ -155,6 +170,11 @@ def main() -> None:
             sys.argv += ["hydra.output_subdir=null", "hydra/job_logging=disabled",
                          "hydra/hydra_logging=disabled", "trainer.progress=false"]
     hydra_main()
+    if sweep.last["failed"]:  # any launcher's: each job records its failure in its directory
+        cli.say(f"{len(sweep.last['failed'])} of the sweep's {sweep.last['jobs']} jobs failed (job "
+                f"{', '.join(sweep.last['failed'])}): each job's {FAILED_JOB} says why, and "
+                f"{sweep.last['summary']} lists them", world.rank)
+        sys.exit(cli.FAILED)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 Hydra calls `SweepSummary.on_multirun_end` in the launching process once every job has returned
 (conf/config.yaml registers it under hydra.callbacks).  It reads each job directory's
 `.hydra/overrides.yaml` and `metrics.json` and writes `summary.json` and `summary.md` into the sweep
-directory: per job its overrides and final metric, or that it left no metrics (failed or still running).
+directory: per job its overrides, final metric and failed solves, or why it failed (its FAILED_JOB file),
+or that it left no metrics (still running).
 """
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ import yaml
 from hydra.experimental.callback import Callback
 
 log = logging.getLogger(__name__)
+FAILED_JOB = "failed.json"  # in a sweep job's directory: the job failed (its exit code and why)
+last = {"failed": [], "jobs": 0, "summary": None}  # the last sweep this process summarised: its failed jobs
 
 
 def summarise(sweep_dir: Path) -> dict:
@@ -24,22 +27,30 @@ def summarise(sweep_dir: Path) -> dict:
     for overrides in sorted(sweep_dir.glob("*/.hydra/overrides.yaml"), key=lambda p: _job_key(p.parent.parent.name)):
         job_dir = overrides.parent.parent
         row = {"job": job_dir.name, "overrides": yaml.safe_load(overrides.read_text()) or [], "dir": str(job_dir)}
-        metrics = job_dir / "metrics.json"
-        if metrics.exists():
+        metrics, failed = job_dir / "metrics.json", job_dir / FAILED_JOB
+        if failed.exists():
+            row.update(value=None, failed=json.loads(failed.read_text()))
+        elif metrics.exists():
             m = json.loads(metrics.read_text())
             row.update({k: m.get(k) for k in ("task", "metric", "value", "unit", "no_actuation", "steps",
                                               "failed_solves")})
+            row["samples"] = len(m.get("per_sample") or [])
         else:
             row["value"] = None
         jobs.append(row)
     body = {"sweep_dir": str(sweep_dir), "jobs": jobs}
     (sweep_dir / "summary.json").write_text(json.dumps(body, indent=1))
-    lines = ["| job | overrides | metric | value | at rest, no actuation | steps |", "|---|---|---|---|---|---|"]
+    lines = ["| job | overrides | metric | value | failed solves | at rest, no actuation | steps |",
+             "|---|---|---|---|---|---|---|"]
     for j in jobs:
-        value = "no metrics (failed or unfinished)" if j["value"] is None else f"{j['value']:.4g} {j['unit']}"
+        if "failed" in j:
+            value = f"failed (exit {j['failed']['exit_code']}): {j['failed']['error']}"
+        else:
+            value = "no metrics (unfinished)" if j["value"] is None else f"{j['value']:.4g} {j['unit']}"
+        solves = f"{j['failed_solves']} of {j['samples']}" if j.get("failed_solves") is not None else ""
         rest = "" if j.get("no_actuation") is None else f"{j['no_actuation']:.4g}"
-        lines.append(f"| {j['job']} | {' '.join(j['overrides'])} | {j.get('metric') or ''} | {value} | {rest} | "
-                     f"{j.get('steps') or ''} |")
+        lines.append(f"| {j['job']} | {' '.join(j['overrides'])} | {j.get('metric') or ''} | {value} | {solves} | "
+                     f"{rest} | {j.get('steps') or ''} |")
     (sweep_dir / "summary.md").write_text("\n".join(lines) + "\n")
     return body
 
@@ -52,5 +63,7 @@ class SweepSummary(Callback):
     def on_multirun_end(self, config, **kwargs) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
         if sweep_dir.is_dir():
-            summarise(sweep_dir)
+            body = summarise(sweep_dir)
+            last.update(failed=[j["job"] for j in body["jobs"] if "failed" in j], jobs=len(body["jobs"]),
+                        summary=sweep_dir / "summary.md")
             log.info("sweep summary: %s", sweep_dir / "summary.md")

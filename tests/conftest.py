@@ -106,6 +106,31 @@ def nma_run(run_dir, *overrides, mpi=0, timeout=600, one_core=False):
     return proc
 
 
+class HeldElsewhere:
+    """Run directories whose lock (nma.cli.RUN_LOCK) another process holds, as a run does from its
+    checks to its end: `with HeldElsewhere(dir, ...):`; the lock files name 'process 4242 on elsewhere'."""
+
+    def __init__(self, *run_dirs):
+        self.locks = [Path(d) / ".lock" for d in run_dirs]
+
+    def __enter__(self):
+        for lock in self.locks:
+            lock.parent.mkdir(parents=True, exist_ok=True)
+        code = ("import fcntl, sys, time\n"
+                "files = [open(p, 'a+') for p in sys.argv[1:]]\n"
+                "for f in files:\n"
+                "    fcntl.flock(f, fcntl.LOCK_EX); f.write('process 4242 on elsewhere'); f.flush()\n"
+                "print('held', flush=True); time.sleep(300)")
+        self.proc = subprocess.Popen([sys.executable, "-c", code, *map(str, self.locks)], stdout=subprocess.PIPE,
+                                     text=True)
+        assert self.proc.stdout.readline().strip() == "held"
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.kill()
+        self.proc.wait()
+
+
 def final_params(run_dir):
     ckpts = sorted((Path(run_dir) / "checkpoints").glob("step_*.msgpack"))
     return serialization.msgpack_restore(ckpts[-1].read_bytes())["params"]

@@ -91,3 +91,24 @@ def test_a_reduced_record_keeps_its_names_and_shapes():
     assert list(total) == ["grads", "loss", "converged"]
     np.testing.assert_array_equal(total["grads"], record["grads"])
     assert total["loss"].shape == () and float(total["loss"]) == 1.5 and float(total["converged"]) == 3.0
+
+
+def test_a_failed_sweep_job_is_recorded_and_the_sweep_goes_on(tmp_path):
+    """Each job of a 2-job sweep fails (another process writes its directory): each failure is recorded
+    in the job's failed.json and the summary, the second job still runs after the first failed, and the
+    command exits 1 saying which jobs failed."""
+    from conftest import HeldElsewhere
+
+    sweep = tmp_path / "sweep"
+    with HeldElsewhere(sweep / "0", sweep / "1"):
+        proc = subprocess.run([sys.executable, "-m", "nma.run", "--multirun", "trainer.seed=0,1",
+                               f"hydra.sweep.dir={sweep}", "task=translation", "logger=none"],
+                              capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1 and "2 of the sweep's 2 jobs failed (job 0, 1): each job's failed.json" in proc.stderr, \
+        proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+    for job in ("0", "1"):
+        failed = json.loads((sweep / job / "failed.json").read_text())
+        assert failed["exit_code"] == 2 and "is in use by process 4242 on elsewhere" in failed["error"]
+    summary = (sweep / "summary.md").read_text()
+    assert summary.count("failed (exit 2): this job's directory=") == 2 and "| failed solves |" in summary

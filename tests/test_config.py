@@ -95,6 +95,21 @@ def call(main, argv, monkeypatch, capsys):
     return exit_.value.code, capsys.readouterr().err
 
 
+def test_a_run_directory_another_process_writes_is_refused_and_kept(tmp_path, monkeypatch, capsys):
+    """Two runs never write one directory: while another process holds its lock (as a run does from
+    its checks to its end), a run there exits 2 naming that process, and leaves the directory as it
+    was; once that process has ended, the directory can be held again."""
+    from conftest import HeldElsewhere
+
+    run_dir = tmp_path / "run"
+    with HeldElsewhere(run_dir):
+        code, err = call(run.main, ["task=translation", "logger=none", f"hydra.run.dir={run_dir}"], monkeypatch, capsys)
+        assert code == 2 and f"hydra.run.dir={run_dir} is in use by process 4242 on elsewhere: two runs" in err, err
+        assert [p.name for p in run_dir.iterdir()] == [cli.RUN_LOCK]  # nothing written, nothing removed
+    cli.hold_run_dir(run_dir)  # the lock went with its process
+    assert f"process {os.getpid()} on " in (run_dir / cli.RUN_LOCK).read_text()
+
+
 @pytest.mark.parametrize("override, message", BAD_RUN)
 def test_training_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys, override, message):
     code, err = call(run.main, [*override.split(" "), f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
