@@ -35,7 +35,6 @@ from .errors import ConfigError, SolverError, Stopped, TrainingError
 from .schema import explain, register
 
 BAD_INPUT, FAILED, SYSTEM = 2, 1, 3
-MAX_SWEEP_CHECKS = 256
 
 
 def say(message: str, rank: int = 0) -> None:
@@ -71,12 +70,14 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
             choices.append([f"{key}={v}" for v in o.sweep_string_iterator()])
         else:
             choices.append([o.input_line])
-    return [list(job) for job in itertools.islice(itertools.product(*choices), MAX_SWEEP_CHECKS)]
+    return [list(job) for job in itertools.product(*choices)]
 
 
-def compose(config_name: str, overrides: list[str], config_dir: str | None = None):
+def compose(config_name: str, overrides: list[str], config_dir: str | None = None, config_path: str | None = None):
     """The composed config of one job, with its `hydra` node (run directory and so on); `config_dir`:
-    Hydra's --config-dir, a directory of configs searched besides conf/."""
+    Hydra's --config-dir, a directory of configs searched besides conf/; `config_path`: Hydra's
+    --config-path, the primary config directory in place of conf/ (relative: to the nma package, as
+    Hydra reads it)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
@@ -85,7 +86,10 @@ def compose(config_name: str, overrides: list[str], config_dir: str | None = Non
         if not Path(config_dir).is_dir():
             raise ConfigError(f"--config-dir {config_dir} is not a directory")
         overrides = [*overrides, f"hydra.searchpath=[file://{Path(config_dir).absolute()}]"]
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+    primary = CONF_DIR if config_path is None else Path(__file__).parent / config_path  # an absolute one wins
+    if not primary.is_dir():
+        raise ConfigError(f"--config-path {config_path} is not a directory ({primary})")
+    with initialize_config_dir(config_dir=str(primary.resolve()), version_base="1.3"):
         return hydra_compose(config_name, overrides=overrides, return_hydra_config=True)
 
 
@@ -108,11 +112,11 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
 
     before_jax_starts()  # the checks below may start JAX's backend
     args, _ = get_args_parser().parse_known_args(argv)
-    if args.help or args.hydra_help or args.info or args.cfg or args.shell_completion \
-            or args.config_path or args.experimental_rerun:
+    if args.help or args.hydra_help or args.info or args.cfg or args.shell_completion or args.experimental_rerun:
         return None  # Hydra answers these itself
     config_name = args.config_name or config_name
     first, bad = None, {}  # bad: message -> the jobs it holds for
+    subdirs: dict[str, int] = {}  # a sweep's job directories (below its sweep directory) -> their first job
     try:
         jobs = job_overrides(args.overrides, args.multirun)
         varying = [i for i in range(len(jobs[0])) if any(job[i] != jobs[0][i] for job in jobs)]
@@ -120,7 +124,11 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
             try:
                 # a sweep's job numbers, as Hydra's basic sweeper gives them: its directory resolves
                 cfg = compose(config_name, [*overrides, f"hydra.job.num={num}"] if args.multirun else overrides,
-                              args.config_dir)
+                              args.config_dir, args.config_path)
+                if args.multirun and subdirs.setdefault(str(cfg.hydra.sweep.subdir), num) != num:
+                    raise ConfigError(f"hydra.sweep.subdir={cfg.hydra.sweep.subdir} is the directory of job "
+                                      f"{subdirs[str(cfg.hydra.sweep.subdir)]} and of job {num}: each job needs its "
+                                      f"own (the default, ${{hydra.job.num}}, gives each its number)")
                 check(without_hydra(cfg), cfg.hydra, args.multirun)
                 if not args.multirun:
                     try:
@@ -336,6 +344,17 @@ def _stop_within(receive: socket.socket, grace: float) -> None:
             signals = [n for n in data if n in (signal.SIGTERM, signal.SIGINT)]
             if signals and first is None:
                 first = (signals[0], time.monotonic())
+
+
+def unused_path(path: Path) -> Path:
+    """`path`, or where a file of that name exists already, the first free `<stem>_<n><suffix>` beside
+    it: a command's result never replaces an earlier one."""
+    base = candidate = Path(path)
+    n = 1
+    while candidate.exists():
+        n += 1
+        candidate = base.with_name(f"{base.stem}_{n}{base.suffix}")
+    return candidate
 
 
 def json_safe(value):

@@ -97,7 +97,8 @@ def evaluate(s: EvaluateConfig) -> dict:
     out = run / "evaluate" / (f"{at['ctrl_per_patch']}x{at['quad_points']}{graded}{'_contact' if at['contact'] else ''}"
                               f"{subset}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
+    out = cli.unused_path(out)  # an earlier evaluation at this fidelity stays
+    out.write_text(json.dumps(cli.json_safe(result), indent=1, allow_nan=False))
     result["file"] = str(out)
     return result
 
@@ -126,7 +127,7 @@ def hydra_main(cfg: DictConfig) -> None:
 
             logging.getLogger("nma.evaluate").warning("at the %s fidelity: %s", which,
                                                       describe(record, record["invalid_samples"], record["fidelity"]["contact"]))
-    print(json.dumps(brief), flush=True)
+    print(json.dumps(cli.json_safe(brief), allow_nan=False), flush=True)
 
 
 def main() -> None:

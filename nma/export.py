@@ -46,6 +46,11 @@ def validate(cfg: DictConfig) -> ExportConfig:
     if settings.output and Path(settings.output).is_dir():
         raise ConfigError(f"output={settings.output} is a directory; name the file to write (e.g. "
                           f"{Path(settings.output) / ('design.' + settings.format)})")
+    own = Path(settings.run).resolve()
+    if settings.output and own in Path(settings.output).resolve().parents \
+            and (own / "export") not in Path(settings.output).resolve().parents:
+        raise ConfigError(f"output={settings.output} lies inside run={settings.run}, among the run's own files: "
+                          f"name a file elsewhere, or leave output unset (the run's export/ directory)")
     run, _, _ = load_run(settings.run)  # the run directory must hold a config and a checkpoint before any work
     if settings.load_cases and run.task.name != "translation":
         raise ConfigError(f"load_cases=true: the load cases (tension, compression, one-sided compression) are "
@@ -248,7 +253,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
 
 def export(s: ExportConfig) -> dict:
     outline = trained_outline(s.run).scaled(s.scale)
-    path = Path(s.output) if s.output else Path(s.run) / "export" / f"design.{s.format}"
+    path = Path(s.output) if s.output else cli.unused_path(Path(s.run) / "export" / f"design.{s.format}")
     path.parent.mkdir(parents=True, exist_ok=True)
     report = fabrication_report(outline, s.samples)
     if s.format == "svg":
@@ -262,8 +267,10 @@ def export(s: ExportConfig) -> dict:
         report["evaluation_states"] = evaluation_states(s.run)
     if s.load_cases:
         report["load_cases"] = write_load_cases(s.run, s.load_fraction, path.parent / "load_cases.png", s.scale)
-    result = {"file": str(path), "format": s.format, "units": "mm", "scale_mm_per_unit": s.scale, **report}
-    (path.parent / "fabrication.json").write_text(json.dumps(json_safe(result), indent=1, allow_nan=False))
+    fabrication = cli.unused_path(path.parent / "fabrication.json")  # an earlier export's report stays
+    result = {"file": str(path), "report": str(fabrication), "format": s.format, "units": "mm",
+              "scale_mm_per_unit": s.scale, **report}
+    fabrication.write_text(json.dumps(json_safe(result), indent=1, allow_nan=False))
     return result
 
 

@@ -43,7 +43,7 @@ class Simulator:
         # threads solving a batch's samples at once (a traced backend batches under vmap instead)
         self.workers = 1 if self.backend.traceable else workers or available_cores()
         # warm_starts: the equilibria kept as starting points (solver.warm_start), None where none are
-        self.equilibrium, self.warm_starts = make_equilibrium(self.equations, self.backend, options, self.workers)
+        self._equilibrium, self.warm_starts = make_equilibrium(self.equations, self.backend, options, self.workers)
         self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
         self._solve = jax.jit(lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat))
         self._energy = jax.jit(lambda X, u, mat: strain_energy(disc, quadrature(disc, X), u, mat))
@@ -89,6 +89,26 @@ class Simulator:
         if not np.all(np.isfinite(np.asarray(d))):
             raise ConfigError(f"actuation must be finite, got {np.asarray(d).tolist()}")
         return d
+
+    def equilibrium(self, X, d, mat) -> Equilibrium:
+        """The equilibrium under actuation d (n_actuations,) of the design with reference points X
+        (n_points, 2) and material [E, nu] (2,): differentiable in all three; under jit a failed solve
+        says so in its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap:
+        one sample's); real numbers of another precision are taken as float64."""
+        return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
+            ("X", X, (self.disc.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
+
+    @staticmethod
+    def _checked(name: str, value, shape: tuple):
+        value = jnp.asarray(value)
+        if value.shape != shape:
+            raise ValueError(f"equilibrium: {name} must have shape {shape}, got {value.shape}")
+        if not jnp.issubdtype(value.dtype, jnp.floating) and not jnp.issubdtype(value.dtype, jnp.integer):
+            raise TypeError(f"equilibrium: {name} must hold real numbers, got dtype {value.dtype}")
+        if not jax.config.jax_enable_x64:
+            raise RuntimeError("equilibrium: nma solves in float64, which JAX has off: call "
+                               "nma.runtime.configure_jax() before any JAX operation")
+        return value.astype(jnp.float64)
 
     def equilibrium_batch(self, X, ds, mat):
         """Solves for a batch of actuations (n, n_act) on one geometry. Host backends hand the batch to

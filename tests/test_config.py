@@ -95,6 +95,40 @@ def call(main, argv, monkeypatch, capsys):
     return exit_.value.code, capsys.readouterr().err
 
 
+def test_every_job_of_a_sweep_is_checked_and_each_has_its_own_directory(tmp_path, monkeypatch, capsys):
+    """However many jobs a sweep has, each is composed and checked before any runs (cli.job_overrides
+    lists them all); two jobs that would write one directory are refused before either runs."""
+    assert len(cli.job_overrides(["trainer.seed=range(0,300)", "trainer.steps=1,2"], True)) == 600
+    code, err = call(run.main, ["--multirun", "trainer.seed=0,1", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                                "hydra.sweep.subdir=same", "logger=none"], monkeypatch, capsys)
+    assert code == 2 and "hydra.sweep.subdir=same is the directory of job 0 and of job 1: each job needs" in err, err
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_a_result_never_replaces_an_earlier_one(tmp_path):
+    """cli.unused_path: the name asked for where it is free, else the first free <stem>_<n> beside it."""
+    first = tmp_path / "5x5_contact.json"
+    assert cli.unused_path(first) == first
+    first.write_text("{}")
+    assert cli.unused_path(first) == tmp_path / "5x5_contact_2.json"
+    (tmp_path / "5x5_contact_2.json").write_text("{}")
+    assert cli.unused_path(first) == tmp_path / "5x5_contact_3.json"
+
+
+def test_a_config_path_of_ones_own_gets_the_checks_before_work(tmp_path, monkeypatch, capsys):
+    """--config-path (a primary config directory in place of conf/) is composed and checked before any
+    work, as the shipped one is; one that is not a directory is named."""
+    import shutil
+
+    shutil.copytree(config.CONF_DIR, tmp_path / "conf")
+    code, err = call(run.main, ["--config-path", str(tmp_path / "conf"), "trainer.steps=1.5",
+                                f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and "trainer.steps must be an integer, got '1.5'" in err, err
+    code, err = call(run.main, ["--config-path", str(tmp_path / "nowhere")], monkeypatch, capsys)
+    assert code == 2 and f"--config-path {tmp_path / 'nowhere'} is not a directory" in err, err
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_run_directory_another_process_writes_is_refused_and_kept(tmp_path, monkeypatch, capsys):
     """Two runs never write one directory: while another process holds its lock (as a run does from
     its checks to its end), a run there exits 2 naming that process, and leaves the directory as it

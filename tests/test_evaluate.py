@@ -1,5 +1,6 @@
 """nma.evaluate: a trained run re-evaluated, at its own fidelity and another."""
 import json
+from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
@@ -8,18 +9,20 @@ from conftest import copy_run
 from nma.errors import ConfigError
 
 
-def test_evaluate_refuses_a_checkpoint_its_config_does_not_fit(tmp_path, translation_run):
-    """A run whose recorded config no longer fits its checkpoint (here the network's widths) is not
-    evaluated with a freshly initialised network: ConfigError naming what does not fit."""
+def test_evaluate_refuses_a_run_whose_files_changed_after_training(tmp_path, translation_run):
+    """A run whose recorded config no longer says what its checkpoint trained (the network's widths, the
+    task's box; a dataset edited after training changes the recorded sha256 the same way) is not
+    evaluated: ConfigError naming each difference, before any work."""
     from nma.evaluate import evaluate
     from nma.schema import EvaluateConfig, Fidelity
 
     d = copy_run(translation_run, tmp_path / "run")
     recorded = d / ".hydra" / "config.yaml"
     cfg = OmegaConf.load(recorded)
-    cfg.model.hidden = [8]
+    cfg.model.hidden, cfg.task.box_half_width = [8], 1.0
     OmegaConf.save(cfg, recorded)
-    with pytest.raises(ConfigError, match=r"does not fit this run's config: the network"):
+    with pytest.raises(ConfigError, match=r"its files no longer say what checkpoint step_\d+.msgpack trained \("
+                                          r"model.hidden: None -> \[8\]; task.box_half_width: 1.5 -> 1.0\)"):
         evaluate(EvaluateConfig(run=str(d), fidelity=Fidelity(5, 3)))
 
 
@@ -39,7 +42,9 @@ def test_evaluate_reproduces_the_run_and_refines_it(translation_run):
     assert refined["fidelity"]["quad_points"] == 5 and refined["failed_solves"] == 0
     assert result["change"] == pytest.approx(refined["metric"] - logged["value"], rel=1e-9)
     assert 0 < abs(result["change"]) < 0.1 * logged["value"]
-    assert json.loads((translation_run / "evaluate" / "5x5.json").read_text())["change"] == result["change"]
+    written = Path(result["file"])  # evaluate/5x5.json, or 5x5_<n>.json beside an earlier one
+    assert written.parent == translation_run / "evaluate" and written.name.startswith("5x5")
+    assert json.loads(written.read_text())["change"] == result["change"]
 
 
 def test_evaluate_on_a_subset_reads_the_same_samples_of_the_run(translation_run):
@@ -57,7 +62,8 @@ def test_evaluate_on_a_subset_reads_the_same_samples_of_the_run(translation_run)
     assert result["samples"] == 3 and len(idx) == 3
     np.testing.assert_allclose(result["training_fidelity"]["per_sample"], np.asarray(logged["per_sample"])[idx],
                                rtol=1e-9)
-    assert json.loads((translation_run / "evaluate" / "5x3_3_samples.json").read_text())["samples"] == 3
+    assert Path(result["file"]).name.startswith("5x3_3_samples") and json.loads(Path(result["file"]).read_text())[
+        "samples"] == 3
     with pytest.raises(ConfigError, match=r"eval_subset must be .* in \[1, 100000000\], got 0"):
         EvaluateConfig(run=str(translation_run), eval_subset=0)
 

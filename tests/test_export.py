@@ -154,6 +154,13 @@ def test_export_command_writes_the_file_and_report(trained_run, design):
     report = json.loads(proc.stdout.strip().splitlines()[-1])  # stdout is the JSON line only
     assert report["file"] == str(trained_run / "export" / "design.dxf")
     assert json.loads((trained_run / "export" / "fabrication.json").read_text()) == report
+    again = export(validate(OmegaConf.create({"run": str(trained_run), "format": "dxf",
+                                                            "scale": 2.5, "states": False})))
+    assert again["file"] == str(trained_run / "export" / "design_2.dxf")  # the first export stays
+    assert again["report"] == str(trained_run / "export" / "fabrication_2.json") and report["report"].endswith(
+        "fabrication.json")
+    with pytest.raises(ConfigError, match="lies inside run=.*among the run's own files"):
+        validate(OmegaConf.create({"run": str(trained_run), "output": str(trained_run / "metrics.svg")}))
     spec, geom, _ = design
     assert report["material_area"] == pytest.approx(2.5 ** 2 * quadrature_area(spec, geom), rel=1e-12)
     assert 0.0 < report["min_ligament"] < 2.5 * 5 and 0.0 < report["porosity"] < 1.0

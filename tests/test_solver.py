@@ -1,3 +1,5 @@
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -243,6 +245,25 @@ def test_a_third_corrector_registered_by_name_needs_no_edit_of_the_loop(monkeypa
     np.testing.assert_allclose(sols["full_step"].u, sols["line_search"].u, atol=1e-9)
     with pytest.raises(ValueError, match="corrector must be one of .*'full_step'.*, got 'dogleg'"):
         NewtonOptions(corrector="dogleg")
+
+
+def test_the_front_door_names_a_wrong_argument_and_takes_other_precisions(simulator):
+    """sim.equilibrium checks each argument's shape and dtype before any work, naming it; float32 (or
+    integer) input is taken as float64, so it meets the same kernels and answers as float64 input."""
+    sim = simulator("translation")
+    X, d, mat = sim.reference_points(sim.init_params()), jnp.array([1.0, -1.0]), material(0.07, 0.3)
+    ref = sim.equilibrium(X, d, mat)
+    low = sim.equilibrium(X.astype(jnp.float32), jnp.array([1, -1]), mat.astype(jnp.float32))
+    assert int(low.info.status) == Status.CONVERGED and low.u.dtype == jnp.float64
+    np.testing.assert_allclose(low.u, ref.u, atol=1e-5)  # X and [E, nu] rounded to float32
+    for args, message in [((X, jnp.array(1.0), mat), "d must have shape (2,), got ()"),
+                          ((X, jnp.zeros(3), mat), "d must have shape (2,), got (3,)"),
+                          ((X[:-1], d, mat), f"X must have shape ({X.shape[0]}, 2), got ({X.shape[0] - 1}, 2)"),
+                          ((X, d, jnp.array([0.07])), "mat must have shape (2,), got (1,)")]:
+        with pytest.raises(ValueError, match=re.escape(f"equilibrium: {message}")):
+            sim.equilibrium(*args)
+    with pytest.raises(TypeError, match="equilibrium: d must hold real numbers, got dtype complex128"):
+        sim.equilibrium(X, d.astype(jnp.complex128), mat)
 
 
 def test_a_status_carries_its_words():

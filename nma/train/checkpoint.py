@@ -72,12 +72,25 @@ def load_latest(directory: Path, warn: bool = True):
     return None
 
 
-def _flatten(tree, prefix=""):
+def flatten(tree, prefix=""):
     if isinstance(tree, dict):
         for k, v in tree.items():
-            yield from _flatten(v, f"{prefix}.{k}" if prefix else str(k))
+            yield from flatten(v, f"{prefix}.{k}" if prefix else str(k))
     else:
         yield prefix, tree
+
+
+def differences(old: dict, new: dict) -> tuple[set[str], list[str]]:
+    """The flat keys whose values differ between two flattened fingerprints, and each as 'key: old -> new'."""
+    changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
+    return changed, [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}" for k in sorted(changed)]
+
+
+def recorded(raw: dict, groups) -> dict | None:
+    """The flattened fingerprint a checkpoint recorded, of the given groups (None where it records none)."""
+    if "config" not in raw:
+        return None
+    return {k: v for k, v in flatten(json.loads(raw["config"])) if k.split(".")[0] in groups}
 
 
 def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: dict | None = None) -> None:
@@ -86,11 +99,10 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: d
     if "config" not in raw:
         log.warning("checkpoint %s records no config; resuming without checking it", path)
         return
-    old = dict(_flatten(json.loads(raw["config"])))
-    new = dict(_flatten(json.loads(json.dumps(fingerprint))))
-    changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
+    old = dict(flatten(json.loads(raw["config"])))
+    new = dict(flatten(json.loads(json.dumps(fingerprint))))
+    changed, diff = differences(old, new)
     if changed:
-        diff = [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}" for k in sorted(changed)]
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
         # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
         # Newton's element bound on, the inversion penalty a term of every loss, and each task an optimiser
@@ -110,7 +122,7 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: d
         if changed & penalty and not penalty & old.keys():
             hints["it trained without the inversion penalty: add trainer.inversion_penalty=0"] = changed & penalty
         optim = {k for k in changed if k.startswith("optim.")}
-        if optim and generic_optim and all(old.get(k) == v for k, v in _flatten({"optim": generic_optim})):
+        if optim and generic_optim and all(old.get(k) == v for k, v in flatten({"optim": generic_optim})):
             hints["it trained with the generic optimiser: add optim=adam"] = optim
         hint = f" ({'; '.join(hints)})" if hints and changed <= set().union(*hints.values()) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("

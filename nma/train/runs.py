@@ -32,6 +32,8 @@ def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainCon
 def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     """A training run directory's checked settings, its newest checkpointed parameters ({"net",
     "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
+    import json
+
     from omegaconf import OmegaConf
 
     from ..errors import ConfigError
@@ -55,7 +57,20 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
         raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
     path, raw = found
     settings = validate(OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg), chosen_fidelity(raw))
+    # what the design is and what it is asked: the run's files must still say what its checkpoint trained
+    trained = checkpoint.recorded(raw, DESIGN_GROUPS)
+    if trained is not None:
+        now = {k: v for k, v in checkpoint.flatten(json.loads(json.dumps(fingerprint(settings))))
+               if k.split(".")[0] in DESIGN_GROUPS}
+        changed, diff = checkpoint.differences(trained, now)
+        if changed:
+            raise ConfigError(f"run={run}: its files no longer say what checkpoint {path.name} trained ("
+                              + "; ".join(diff) + "): a config or dataset changed after training; restore it, or "
+                              "train anew")
     return settings, raw["params"], path
+
+
+DESIGN_GROUPS = ("task", "scene", "model", "material")  # the fingerprint's groups a trained design is checked by
 
 
 def chosen_fidelity(raw: dict) -> tuple[int, int] | None:
