@@ -97,6 +97,18 @@ def _flat_numbers(value):
         yield value
 
 
+def _every_number(value):
+    """Every number inside nested lists, tuples and mappings (a task's cases, a scene's groups)."""
+    if isinstance(value, dict):
+        for v in value.values():
+            yield from _every_number(v)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _every_number(v)
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield value
+
+
 class Schema:
     """Base of every config dataclass: type and range checks of each field, then `check()`."""
     prefix: ClassVar[str] = ""
@@ -122,6 +134,8 @@ class Schema:
                         if isinstance(value, (list, tuple)):
                             what = "a list of numbers, each"
                         raise ConfigError(f"{path} must be {what} in {spec}, got {value!r}")
+            if any(isinstance(x, float) and not math.isfinite(x) for x in _every_number(value)):
+                raise ConfigError(f"{path} must hold finite numbers only, got {value!r}")
             if "choices" in f.metadata and value not in f.metadata["choices"]:
                 raise ConfigError(f"{path} must be one of {list(f.metadata['choices'])}, got {value!r}")
         self.check()

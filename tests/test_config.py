@@ -70,6 +70,10 @@ BAD_RUN = [
     ("task=strip_spread scene=strip task.goal=force task.points=[] task.group=middle",
      "task.group 'middle' is not an actuated group of scene strip; its groups are ['left', 'right']"),
     ("task=translation_spec scene=translation task.loss=l3", "task.loss must be one of ['l1', 'l2']"),
+    ("task=translation_spec scene=translation task.low=[-1.5,nan]", "task.low must hold finite numbers only"),
+    ("task=strip_pore scene=strip task.cases={open:[0.2],shut:[inf]}", "task.cases must hold finite numbers only"),
+    ("scene.groups.0.direction=[1,nan]", "scene.groups.direction must hold finite numbers only, got [1.0, nan]"),
+    ("scene.x_breaks=[0,5,nan,15,20,25]", "scene.x_breaks must hold finite numbers only"),
     ("task=digital_mnist task.phase=finetune", "optim.lr must be in (0, 0.01] for task.phase=finetune, which trains "
                                                "a network, got 0.3 (task=digital_mnist's rate is the lookup table's)"),
     ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "
