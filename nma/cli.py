@@ -53,7 +53,9 @@ def _one_line(exc: BaseException) -> str:
             return (f"task={name} names no scene of its own name (scene={name} is unknown): give its scene, "
                     f"scene=<one of {options}>")
         if group:
-            return f"{group}={name} is unknown; choose one of {options}"
+            from .registry import broken_plugins
+
+            return f"{group}={name} is unknown; choose one of {options}{broken_plugins() if group == 'task' else ''}"
     return explain(exc)
 
 
@@ -83,9 +85,15 @@ def compose(config_name: str, overrides: list[str], config_dir: str | None = Non
 
     register()
     if config_dir is not None:
-        if not Path(config_dir).is_dir():
+        mine = Path(config_dir)
+        if not mine.is_dir():
             raise ConfigError(f"--config-dir {config_dir} is not a directory")
-        overrides = [*overrides, f"hydra.searchpath=[file://{Path(config_dir).absolute()}]"]
+        clashes = sorted(str(p.relative_to(mine)) for p in mine.rglob("*.yaml")
+                         if (CONF_DIR / p.relative_to(mine)).is_file())
+        if clashes:  # Hydra reads conf/ first: the shipped file would be used in place of the user's
+            raise ConfigError(f"--config-dir {config_dir}: {', '.join(clashes)} has the name of a config nma ships "
+                              f"(conf/), which would be read in its place: give yours a name of its own")
+        overrides = [*overrides, f"hydra.searchpath=[file://{mine.absolute()}]"]
     primary = CONF_DIR if config_path is None else Path(__file__).parent / config_path  # an absolute one wins
     if not primary.is_dir():
         raise ConfigError(f"--config-path {config_path} is not a directory ({primary})")

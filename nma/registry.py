@@ -40,7 +40,7 @@ class Registry(Generic[T]):
 
     def get(self, name: str) -> Callable[..., T]:
         if name not in self._items:
-            raise ConfigError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}")
+            raise ConfigError(f"{self.kind} must be one of {sorted(self._items)}, got {name!r}{broken_plugins()}")
         factory = self._items[name]
         if isinstance(factory, str):
             module, _, attribute = factory.partition(":")
@@ -63,16 +63,37 @@ LINEAR_SOLVERS: Registry = Registry("solver.linear")
 CORRECTORS: Registry = Registry("solver.corrector")  # nma.solver.correctors
 
 PLUGIN_GROUP = "nma.tasks"  # entry points of installed packages whose modules register tasks
+BROKEN_PLUGINS: dict[str, str] = {}  # entry point -> why it did not import (its tasks are unavailable)
+_plugins_loaded = False
 
 
 def load_plugins() -> None:
-    """Import the module of every `nma.tasks` entry point of an installed package: a task written outside
-    nma registers itself there, its factory with its schema (`@TASKS.register(name, schema=...)`)."""
+    """Import the module of every `nma.tasks` entry point of an installed package, once: a task written
+    outside nma registers itself there, its factory with its schema (`@TASKS.register(name, schema=...)`).
+    One that does not import (or exits) is named in a warning and in BROKEN_PLUGINS, and the commands go
+    on without its tasks."""
+    import sys
     from importlib.metadata import entry_points
 
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
     for ep in entry_points(group=PLUGIN_GROUP):
         try:
             ep.load()
-        except Exception as exc:
-            raise ConfigError(f"the {PLUGIN_GROUP} entry point {ep.name} = {ep.value} does not import: "
-                              f"{type(exc).__name__}: {exc}") from None
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # SystemExit too: a plugin never ends the command
+            why = f"{type(exc).__name__}: {exc}"
+            BROKEN_PLUGINS[f"{ep.name} = {ep.value}"] = why
+            print(f"warning: the {PLUGIN_GROUP} entry point {ep.name} = {ep.value} does not import ({why}); its "
+                  f"tasks are unavailable", file=sys.stderr, flush=True)
+
+
+def broken_plugins() -> str:
+    """The entry points that did not import, for a message that lists the tasks there are ("" if none)."""
+    if not BROKEN_PLUGINS:
+        return ""
+    return (f" (the {PLUGIN_GROUP} entry points that did not import: "
+            + "; ".join(f"{k}: {v}" for k, v in BROKEN_PLUGINS.items()) + ")")

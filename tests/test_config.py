@@ -109,6 +109,16 @@ def test_every_job_of_a_sweep_is_checked_and_each_has_its_own_directory(tmp_path
     assert not (tmp_path / "sweep").exists()
 
 
+def test_a_config_of_ones_own_named_as_a_shipped_one_is_refused(tmp_path, monkeypatch, capsys):
+    """A file in --config-dir named as one nma ships would be shadowed by the shipped one (Hydra reads
+    conf/ first): refused before any work, naming it."""
+    (tmp_path / "mine" / "task").mkdir(parents=True)
+    (tmp_path / "mine" / "task" / "strip_spread.yaml").write_text("defaults: [spec_schema, _self_]\nname: strip\n")
+    code, err = call(run.main, ["--config-dir", str(tmp_path / "mine"), "task=strip_spread", "scene=strip",
+                                f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and "task/strip_spread.yaml has the name of a config nma ships (conf/)" in err, err
+
+
 def test_a_result_never_replaces_an_earlier_one(tmp_path):
     """cli.unused_path: the name asked for where it is free, else the first free <stem>_<n> beside it."""
     first = tmp_path / "5x5_contact.json"

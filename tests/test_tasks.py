@@ -257,6 +257,30 @@ def test_a_task_from_outside_registers_and_trains(tmp_path):
     assert metrics["metric"] == "mean_lift_error" and np.isfinite(metrics["value"])
 
 
+def test_a_broken_plugin_is_named_and_the_commands_go_on(tmp_path):
+    """Installed `nma.tasks` entry points whose modules raise, or call sys.exit, do not take the commands
+    down: each is named in one warning, --help works, and asking for a task one of them would bring says
+    that the task is unknown and which plugins did not import (exit 2, no traceback)."""
+    (tmp_path / "raises.py").write_text("raise RuntimeError('missing dependency foo')\n")
+    (tmp_path / "exits.py").write_text("import sys\nsys.exit(3)\n")
+    dist = tmp_path / "broken_tasks-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-tasks\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[nma.tasks]\nraises = raises\nexits = exits\n")
+    env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path)}
+    help_ = subprocess.run([sys.executable, "-m", "nma.run", "--help"], capture_output=True, text=True, env=env,
+                           timeout=300)
+    assert help_.returncode == 0 and "Traceback" not in help_.stderr, help_.stderr[-2000:]
+    proc = subprocess.run([sys.executable, "-m", "nma.run", "task=lift", f"hydra.run.dir={tmp_path / 'run'}"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert "warning: the nma.tasks entry point raises = raises does not import (RuntimeError: missing dependency " \
+           "foo); its tasks are unavailable" in proc.stderr
+    assert "entry point exits = exits does not import (SystemExit: 3)" in proc.stderr
+    assert "error: task=lift is unknown; choose one of" in proc.stderr
+    assert "(the nma.tasks entry points that did not import: raises = raises: RuntimeError" in proc.stderr
+
+
 def test_a_spec_fingerprint_holds_its_datasets_contents_and_no_unset_new_fields(tmp_path):
     """A checkpoint's fingerprint (what a resume compares) holds a dataset's contents, so that a changed file
     is not continued silently, and leaves out the spec fields a task does not set, so that runs written
