@@ -175,7 +175,10 @@ def evaluation_states(run_dir) -> dict:
     step = int(path.stem.split("_")[-1])
     keys = ("invalid_states", "checked_states", "failed_solves", "min_J", "min_gap", "invalid_samples")
     metrics = run / "metrics.json"
-    logged = json.loads(metrics.read_text()) if metrics.is_file() else {}
+    try:
+        logged = json.loads(metrics.read_text()) if metrics.is_file() else {}
+    except (ValueError, UnicodeDecodeError):  # unreadable: solved again below, as without it
+        logged = {}
     if logged.get("step") == step and all(k in logged for k in keys):
         found, source = {k: logged[k] for k in keys}, f"the run's final evaluation ({metrics.name})"
     else:

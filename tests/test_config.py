@@ -74,6 +74,11 @@ BAD_RUN = [
     ("task=strip_pore scene=strip task.cases={open:[0.2],shut:[inf]}", "task.cases must hold finite numbers only"),
     ("scene.groups.0.direction=[1,nan]", "scene.groups.direction must hold finite numbers only, got [1.0, nan]"),
     ("scene.x_breaks=[0,5,nan,15,20,25]", "scene.x_breaks must hold finite numbers only"),
+    ("task=translation_spec scene=translation +scene.tracked.twin=[12.5,12.5] task.points=[pointer,twin] "
+     "task.goal=distance task.low=[-1] task.high=[1]",
+     "task.points ['pointer', 'twin'] are one place in scene translation ([12.5, 12.5]): goal distance needs two"),
+    ("task=strip_spread scene=strip task.low=[-25]", "task.low asks for a distance change of -25, but top_left, "
+                                                     "top_right are 20 apart at rest: each change must be above -20"),
     ("task=digital_mnist task.phase=finetune", "optim.lr must be in (0, 0.01] for task.phase=finetune, which trains "
                                                "a network, got 0.3 (task=digital_mnist's rate is the lookup table's)"),
     ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "

@@ -124,3 +124,19 @@ def test_a_run_from_before_the_element_bound_is_read_without_it(tmp_path, transl
     del cfg.solver["element_bound"]
     OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
     assert load_run(run)[0].solver.element_bound is False
+
+
+def test_a_directory_that_is_no_training_run_is_named_as_such(tmp_path):
+    """load_run (nma.evaluate's and nma.export's): another command's directory, or a damaged config,
+    is a ConfigError naming the directory, not a traceback."""
+    from nma.train.runs import load_run
+
+    (tmp_path / "simulated" / ".hydra").mkdir(parents=True)
+    (tmp_path / "simulated" / ".hydra" / "config.yaml").write_text("scene: {name: translation}\nactuation: null\n")
+    with pytest.raises(ConfigError, match=r"run=.*simulated is not a training run directory \(its .hydra/config.yaml "
+                                          r"holds no task and trainer: another command's\)"):
+        load_run(tmp_path / "simulated")
+    (tmp_path / "damaged" / ".hydra").mkdir(parents=True)
+    (tmp_path / "damaged" / ".hydra" / "config.yaml").write_text("task: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"run=.*damaged: .*config.yaml does not read \(\w+"):
+        load_run(tmp_path / "damaged")

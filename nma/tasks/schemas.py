@@ -4,6 +4,7 @@ importing the task's code.  A task from outside nma registers its own (`@TASKS.r
 TASK_SCHEMAS: the task name -> its schema."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Dict, List, Optional
 
@@ -196,6 +197,18 @@ class SpecTask(TaskConfig):
         if missing:
             raise ConfigError(f"task.points names {missing}, which scene {scene.name} does not track; its tracked "
                               f"points are {sorted(scene.tracked)} (scene.tracked)")
+        if self.goal in ("distance", "rotate") and len(self.points) == 2:
+            a, b = (scene.tracked[p] for p in self.points)
+            if [float(v) for v in a] == [float(v) for v in b]:  # no distance, no direction between them
+                raise ConfigError(f"task.points {self.points} are one place in scene {scene.name} ({list(a)}): goal "
+                                  f"{self.goal} needs two points apart")
+            apart = math.dist([float(v) for v in a], [float(v) for v in b])
+            asked = ([v[0] for v in self.cases.values()] if self.cases else
+                     [self.low[0]] if self.low and not self.dataset else [])
+            if self.goal == "distance" and asked and apart + min(asked) <= 0:  # a dataset's rows: when it is read
+                raise ConfigError(f"task.{'cases' if self.cases else 'low'} asks for a distance change of "
+                                  f"{min(asked):g}, but {', '.join(self.points)} are {apart:g} apart at rest: each "
+                                  f"change must be above {-apart:g}")
         if self.group is not None and self.group not in [g.name for g in scene.groups]:
             raise ConfigError(f"task.group {self.group!r} is not an actuated group of scene {scene.name}; its groups "
                               f"are {[g.name for g in scene.groups]} (scene.groups)")

@@ -104,6 +104,12 @@ class SpecTask(Task):
         else:
             self._eval = jnp.asarray(self.cases)
             self.sweep_fps = 1.0  # separate cases, not a continuous path
+        if self.goal == "distance":  # a target distance below zero is no distance
+            apart, lowest = float(jnp.linalg.norm(self.rest[1] - self.rest[0])), float(jnp.min(self._eval))
+            if apart + lowest <= 0:
+                where = "task.cases" if cfg.cases else f"task.dataset {cfg.dataset}" if cfg.dataset else "task.low"
+                raise ConfigError(f"{where} asks for a distance change of {lowest:g}, but {', '.join(cfg.points)} "
+                                  f"are {apart:g} apart at rest: each change must be above {-apart:g}")
         first, last = (self.point_names or ["", ""])[0], (self.point_names or ["", ""])[-1]
         self.metric_name, self.metric_unit, self._label = {
             "move": (f"mean_{first if len(self.point_names) == 1 else 'point'}_error", "length units",

@@ -33,6 +33,7 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     """A training run directory's checked settings, its newest checkpointed parameters ({"net",
     "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
     import json
+    from collections.abc import Mapping
 
     from omegaconf import OmegaConf
 
@@ -44,7 +45,13 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     saved = run / ".hydra" / "config.yaml"
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
-    cfg = OmegaConf.load(saved)
+    try:
+        cfg = OmegaConf.load(saved)
+    except Exception as exc:  # YAML or OmegaConf errors of a damaged file
+        raise ConfigError(f"run={run}: {saved} does not read ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
+    if not isinstance(cfg, Mapping) or not isinstance(cfg.get("task"), Mapping) or "trainer" not in cfg:
+        raise ConfigError(f"run={run} is not a training run directory (its .hydra/config.yaml holds no task and "
+                          f"trainer: another command's)")
     # a run trained before Newton's element bound was the default: its states are re-solved as it found them
     if "element_bound" not in cfg.get("solver", {}):
         cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}
