@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-MIN_COMPILE_SECONDS = 0.0  # even the ~100 small programs of setting up a scene (20 ms each) load faster
+MIN_COMPILE_SECONDS = 0.0  # even the many small programs of setting up a scene load faster than they compile
 
 
 def cache_dir() -> Path | None:

