@@ -157,9 +157,13 @@ def write_stl(outline: Outline, path: Path, thickness: float, samples: int) -> f
     Returns the mesh's volume."""
     import trimesh
 
-    mesh = trimesh.creation.extrude_polygon(outline.polygon(samples), height=thickness)
+    try:
+        mesh = trimesh.creation.extrude_polygon(outline.polygon(samples), height=thickness)
+    except ValueError as exc:  # a height or section the mesh library cannot extrude at its tolerance
+        raise ConfigError(f"thickness={thickness:g} (with scale) does not extrude the section: {exc}") from None
     if not mesh.is_watertight:
-        raise RuntimeError(f"the extruded mesh of {path.name} is not watertight")
+        raise ConfigError(f"the extruded mesh of {path.name} is not watertight at thickness={thickness:g} and this "
+                          f"scale: choose a thickness and scale nearer the part's own size")
     mesh.export(path)
     return float(mesh.volume)
 

@@ -168,7 +168,7 @@ def test_export_command_writes_the_file_and_report(trained_run, design):
 
 @pytest.mark.parametrize("overrides, message", [
     ({"format": "obj"}, "format must be one of ['svg', 'dxf', 'stl']"),
-    ({"scale": 0.0}, "scale must be a finite number in (0, inf)"),
+    ({"scale": 0.0}, "scale must be a finite number in [0.001, 10000]"),
     ({"run": "/nonexistent/run"}, "is not a training run directory"),
     ({"load_cases": True}, "load_cases=true: the load cases (tension, compression, one-sided compression) are the "
                            "translation part's"),

@@ -74,8 +74,9 @@ class ExportConfig(Schema):
     """`python -m nma.export run=<run dir>`: a trained run's geometry as a file to make it from."""
     run: str = MISSING                      # a training run directory (its .hydra/config.yaml and checkpoints)
     format: Optional[str] = field(default=None, metadata={"doc": "svg, dxf or stl; null: output's extension, else svg"})
-    scale: float = bounded(1.0, "(0, inf)", doc="millimetres per length unit of the scene")
-    thickness: float = bounded(10.0, "(0, inf)", doc="STL: extrusion height in millimetres")
+    scale: float = bounded(1.0, "[0.001, 10000]", doc="millimetres per length unit of the scene (a part from "
+                           "microns to metres; the geometry libraries round below that)")
+    thickness: float = bounded(10.0, "[0.001, 100000]", doc="STL: extrusion height in millimetres")
     samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
                                                 "(STL, the fabrication report)")
     output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
