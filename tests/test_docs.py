@@ -156,3 +156,14 @@ def test_ci_runs_the_readmes_set_up_and_test_commands():
     pins = [line.split(";")[0].strip() for line in (ROOT / "requirements.lock").read_text().splitlines()
             if line.strip() and not line.lstrip().startswith("#")]
     assert pins and all(re.fullmatch(r"[A-Za-z0-9._-]+==[\w.+!-]+", p) for p in pins), pins
+
+
+def test_the_readme_is_a_quick_start():
+    """README.md: at most 100 lines, and no prose paragraph over 80 words (tables, lists and code blocks
+    aside)."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 100
+    prose = re.sub(r"```.*?```", "", text, flags=re.S)
+    long = [p[:60] for p in prose.split("\n\n")
+            if not p.lstrip().startswith(("|", "-", "#", "!")) and len(p.split()) > 80]
+    assert not long, long
