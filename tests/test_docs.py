@@ -167,3 +167,19 @@ def test_the_readme_is_a_quick_start():
     long = [p[:60] for p in prose.split("\n\n")
             if not p.lstrip().startswith(("|", "-", "#", "!")) and len(p.split()) > 80]
     assert not long, long
+
+
+def test_the_settings_reference_is_the_schemas():
+    """docs/settings.md is what experiments/settings_reference.py writes from today's schema: every
+    setting of every group, with its type, default, allowed values and meaning."""
+    sys.path.insert(0, str(ROOT / "experiments"))
+    try:
+        import settings_reference
+    finally:
+        sys.path.remove(str(ROOT / "experiments"))
+    assert (ROOT / "docs" / "settings.md").read_text() == settings_reference.page(), \
+        "docs/settings.md is stale: python experiments/settings_reference.py"
+    text = settings_reference.page()
+    for key in ("material.nu", "solver.corrector", "optim.lr_scale.radii", "trainer.max_failed_steps", "scene.groups"):
+        assert f"`{key}`" in text
+

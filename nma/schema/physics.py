@@ -15,8 +15,9 @@ from ..settings import Schema, bounded, choice
 class MaterialConfig(Schema):
     """Neo-Hookean material: Young's modulus and Poisson's ratio (the paper: E = 0.07, nu = 0.3)."""
     prefix: ClassVar[str] = "material"
-    E: float = bounded(0.07, MATERIAL_RANGES["E"])
-    nu: float = bounded(0.3, MATERIAL_RANGES["nu"], doc="0.5 is incompressible, which a displacement model cannot represent")
+    E: float = bounded(0.07, MATERIAL_RANGES["E"], doc="Young's modulus, in the units of every force and stress")
+    nu: float = bounded(0.3, MATERIAL_RANGES["nu"],
+        doc="0.5 is incompressible, which a displacement model cannot represent")
     formulation: str = choice("auto", ("auto", *FORMULATIONS), doc="mixed: the volume term at each element's mean "
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy); auto: mixed "
                               f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
@@ -114,13 +115,15 @@ class SolverConfig(Schema):
     max_step_iters: Optional[int] = bounded(None, "[1, 100000]",
                                             doc="corrector iterations before a load step fails (up to 5 more while its "
                                                 "residual is within 1000x the tolerance); None (auto): by the material")
-    initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]")
-    min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]")
-    grow: float = bounded(_NEWTON.grow, "[1, 100]")
+    initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]",
+        doc="the first load step, a fraction of the full load")
+    min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]", doc="a load step halved below this fails the solve")
+    grow: float = bounded(_NEWTON.grow, "[1, 100]", doc="the next load step's growth after a quick one")
     step_fraction: float = bounded(_NEWTON.step_fraction, "(0, 1]",
                                    doc="a step may go this fraction of the way to J = 0")
-    armijo: float = bounded(_NEWTON.armijo, "(0, 0.5]")
-    max_backtracks: int = bounded(_NEWTON.max_backtracks, "[1, 1000]")
+    armijo: float = bounded(_NEWTON.armijo, "(0, 0.5]", doc="the line search's sufficient decrease")
+    max_backtracks: int = bounded(_NEWTON.max_backtracks, "[1, 1000]",
+        doc="halvings of a step before the line search gives up")
     damped_step: float = bounded(_NEWTON.damped_step, "(0, 1]",
                                  doc="a corrector step shorter than this fraction of the Newton step is heavily damped")
     max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",

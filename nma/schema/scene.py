@@ -106,23 +106,23 @@ def _rank(rows: list[list[float]], tol: float) -> tuple[int, list[list[float]]]:
 class SceneConfig(Schema):
     """A cell grid: tokens P (porous), S (solid), . (empty), listed top row first."""
     prefix: ClassVar[str] = "scene"
-    name: str = MISSING
-    cells: str = MISSING
-    cell_size: float = bounded(5.0, "(0, inf)")
+    name: str = MISSING  # the scene's name (a task runs on the scene of its own name)
+    cells: str = MISSING  # the grid, a row of tokens a line, top row first
+    cell_size: float = bounded(5.0, "(0, inf)", doc="a cell's side, in the scene's length units")
     x_breaks: Optional[List[float]] = None     # cell boundaries, overriding cell_size
-    y_breaks: Optional[List[float]] = None
-    groups: List[GroupConfig] = field(default_factory=list)
+    y_breaks: Optional[List[float]] = None     # as x_breaks, for the rows
+    groups: List[GroupConfig] = field(default_factory=list)  # actuated boundary segments (docs/scenes.md)
     pinned: List[Any] = field(default_factory=list)          # [[x, y], ...]
     supports: List[SupportConfig] = field(default_factory=list)  # segments that hold the body
     tracked: Dict[str, Any] = field(default_factory=dict)    # name -> [x, y] (a material point)
-    radii_init: float = bounded(0.5, "(0, 1)")
+    radii_init: float = bounded(0.5, "(0, 1)", doc="the pores' initial radii, a fraction of the cell")
     radii_bounds: List[float] = bounded(spec="(0, 1)", factory=lambda: [0.1, 0.9],
                                         doc="0 closes a pore, 1 cuts a cell apart: both degenerate")
     corner_box: float = bounded(0.0, "[0, inf)", doc="half-width of the box interior nodes move in")
     locked_nodes: List[Any] = field(default_factory=list)    # grid nodes [[i, j], ...] that never move
     central_pore: List[Any] = field(default_factory=list)    # ring of grid nodes [[i, j], ...], counter-clockwise
-    central_radii_init: float = bounded(0.8, "(0, 1)")
-    colours: bool = False
+    central_radii_init: float = bounded(0.8, "(0, 1)", doc="the central pore's initial radii")
+    colours: bool = False  # a colour field on the material (digital MNIST's display)
     # the pore walls meet tangent at the pore corners (each corner's radius derived from its neighbours',
     # 3 design radii per side), not at an angle: no re-entrant corner, so no singular stress there for
     # refinement to chase; false: the paper's pores, a radius per corner

@@ -13,43 +13,44 @@ class ModelConfig(Schema):
     prefix: ClassVar[str] = "model"
     name: str = "mlp"         # an encoder registered in nma.models
     hidden: Optional[List[int]] = bounded(None, "[1, 100000]", doc="null: the task's widths (task.hidden)")
-    out_bias: bool = False
+    out_bias: bool = False  # a bias on the output layer (the authors' code has none)
 
 
 @dataclass
 class LrScale(Schema):
     """Learning rate of each geometry group as a multiple of the network's; 0 freezes the group."""
     prefix: ClassVar[str] = "optim.lr_scale"
-    radii: float = bounded(1.0, "[0, inf)")
-    corners: float = bounded(1.0, "[0, inf)")
-    pore_radii: float = bounded(1.0, "[0, inf)")
-    colours: float = bounded(1.0, "[0, inf)")
+    radii: float = bounded(1.0, "[0, inf)", doc="the cells' pore radii")
+    corners: float = bounded(1.0, "[0, inf)", doc="the cell corners' moves")
+    pore_radii: float = bounded(1.0, "[0, inf)", doc="shape matching's central pore radii")
+    colours: float = bounded(1.0, "[0, inf)", doc="digital MNIST's colour field")
 
 
 @dataclass
 class OptimConfig(Schema):
     """Adam per parameter group, optionally with cosine decay to final_fraction * lr."""
     prefix: ClassVar[str] = "optim"
-    name: str = choice("adam", ("adam",))
-    lr: float = bounded(1e-3, "(0, inf)")
+    name: str = choice("adam", ("adam",), doc="Adam (optax), per parameter group")
+    lr: float = bounded(1e-3, "(0, inf)", doc="the network's learning rate (each task brings its own: conf/optim/)")
     lr_scale: LrScale = field(default_factory=LrScale)
-    schedule: str = choice("constant", ("constant", "cosine"))
-    final_fraction: float = bounded(0.1, "[0, 1]")
+    schedule: str = choice("constant", ("constant", "cosine"),
+        doc="cosine: decays to final_fraction x lr over trainer.steps")
+    final_fraction: float = bounded(0.1, "[0, 1]", doc="the cosine schedule's last rate, a fraction of lr")
 
 
 @dataclass
 class TrainerConfig(Schema):
     prefix: ClassVar[str] = "trainer"
-    steps: int = bounded(100, "[1, 10000000]")
-    batch_size: int = bounded(8, "[1, 100000]")
-    eval_every: int = bounded(25, "[1, 10000000]")
+    steps: int = bounded(100, "[1, 10000000]", doc="training steps, one batch each")
+    batch_size: int = bounded(8, "[1, 100000]", doc="task samples a step (a multiple of the MPI ranks)")
+    eval_every: int = bounded(25, "[1, 10000000]", doc="steps between evaluations (and the last step's)")
     eval_subset: Optional[int] = bounded(200, "[1, 100000000]", doc="evaluations before the last use this many "
                                          "samples of the evaluation set, evenly spaced through it (the same ones "
                                          "every time); the last evaluation, the run's metric, uses all; null: all")
-    checkpoint_every: int = bounded(25, "[1, 10000000]")
+    checkpoint_every: int = bounded(25, "[1, 10000000]", doc="steps between checkpoints (and the last step's)")
     resume: Any = field(default="false", metadata={"doc": "false | true | force (ignore a changed config)"})
     freeze_geometry: bool = False          # the paper's baseline: control only, the initial design stays
-    seed: int = bounded(0, "[0, 4294967295]")
+    seed: int = bounded(0, "[0, 4294967295]", doc="the network's initialisation and the batches' samples")
     fields: str = choice("final", ("final", "all", "none"),
                          doc="HDF5 fields of the evaluation samples: of the final evaluation, of every one, or none")
     fields_samples: int = bounded(9, "[2, 64]", doc="material points per patch side in the HDF5 fields")
@@ -67,7 +68,7 @@ class TrainerConfig(Schema):
                                        "nothing (the MNIST fit) have no states for it")
     inversion_margin: float = bounded(0.2, "(0, 1)", doc="det F below which the inversion penalty acts")
     init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
-    progress: bool = True
+    progress: bool = True  # a progress bar with the time left
 
     def check(self):
         self.resume = str(self.resume).lower()  # Hydra parses `trainer.resume=true` as a bool
@@ -78,6 +79,7 @@ class TrainerConfig(Schema):
 @dataclass
 class LoggerConfig(Schema):
     prefix: ClassVar[str] = "logger"
-    name: str = choice("wandb", ("wandb", "none"))
+    name: str = choice("wandb", ("wandb", "none"),
+        doc="wandb: Weights & Biases, offline unless WANDB_MODE says otherwise")
     mode: str = choice("offline", ("offline", "online", "disabled"), doc="offline needs no network")
-    project: str = "nma"
+    project: str = "nma"  # the Weights & Biases project
