@@ -43,9 +43,6 @@ def validate(cfg: DictConfig) -> ExportConfig:
     from .train.runs import load_run
 
     settings = build(ExportConfig, cfg)
-    if settings.output and Path(settings.output).is_dir():
-        raise ConfigError(f"output={settings.output} is a directory; name the file to write (e.g. "
-                          f"{Path(settings.output) / ('design.' + settings.format)})")
     own = Path(settings.run).resolve()
     if settings.output and own in Path(settings.output).resolve().parents \
             and (own / "export") not in Path(settings.output).resolve().parents:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, List, Optional
 
@@ -91,6 +92,9 @@ class ExportConfig(Schema):
         if given is not None and given not in self.FORMATS:
             self.fail("format", f"must be one of {list(self.FORMATS)}", given)
         if self.output is not None:
+            if os.path.isdir(self.output):
+                self.fail("output", f"is a directory; name the file to write (e.g. "
+                                    f"{os.path.join(self.output, 'design.' + (given or 'svg'))})", self.output)
             suffix = self.output.rpartition(".")[2].lower() if "." in self.output.rpartition("/")[2] else ""
             if suffix in self.FORMATS and given not in (None, suffix):
                 self.fail("format", f"is {given} but output={self.output} names a .{suffix} file; give one of them, "
