@@ -18,6 +18,7 @@ import copy
 import itertools
 import math
 import os
+import re
 import select
 import shutil
 import signal
@@ -52,6 +53,11 @@ def _one_line(exc: BaseException) -> str:
             # scene defaults to the task's option name; a task posed in YAML may be named otherwise
             return (f"task={name} names no scene of its own name (scene={name} is unknown): give its scene, "
                     f"scene=<one of {options}>")
+        if group and name.endswith("_schema"):  # a config file's defaults list names a schema
+            from hydra.core.config_store import ConfigStore
+
+            schemas = sorted(o.removesuffix(".yaml") for o in ConfigStore.instance().list(group) if "_schema" in o)
+            return f"the schema {name} in a {group} file's defaults list is unknown; choose one of {schemas}"
         if group:
             from .registry import broken_plugins
 
@@ -94,6 +100,11 @@ def compose(config_name: str, overrides: list[str], config_dir: str | None = Non
             raise ConfigError(f"--config-dir {config_dir}: {', '.join(clashes)} has the name of a config nma ships "
                               f"(conf/), which would be read in its place: give yours a name of its own")
         overrides = [*overrides, f"hydra.searchpath=[file://{mine.absolute()}]"]
+    for override in overrides:  # Hydra passes over a search path that does not exist
+        if override.startswith(("hydra.searchpath=", "+hydra.searchpath=")):
+            for entry in re.findall(r"file://([^,\]\s'\"]+)", override):
+                if not Path(entry).is_dir():
+                    raise ConfigError(f"hydra.searchpath names {entry}, which is not a directory")
     primary = CONF_DIR if config_path is None else Path(__file__).parent / config_path  # an absolute one wins
     if not primary.is_dir():
         raise ConfigError(f"--config-path {config_path} is not a directory ({primary})")
@@ -289,6 +300,9 @@ def exit_codes(rank: int = 0, run_dir: Path | None = None):
         _exit("interrupted (Ctrl-C)", 128 + signal.SIGINT, rank)
     except OSError as err:
         _exit(_os_error(err), SYSTEM, rank)
+    except MemoryError:  # an operating-system limit the memory estimate did not foresee
+        _exit("out of memory: ask for a coarser fidelity (fidelity.ctrl_per_patch, fidelity.quad_points), a "
+              "smaller batch, or a machine with more memory", SYSTEM, rank)
 
 
 def _exit(message: str, code: int, rank: int):

@@ -79,6 +79,7 @@ BAD_RUN = [
      "task.points ['pointer', 'twin'] are one place in scene translation ([12.5, 12.5]): goal distance needs two"),
     ("task=strip_spread scene=strip task.low=[-25]", "task.low asks for a distance change of -25, but top_left, "
                                                      "top_right are 20 apart at rest: each change must be above -20"),
+    ("hydra.searchpath=[file:///nonexistent/conf]", "hydra.searchpath names /nonexistent/conf, which is not a directory"),
     ("task=digital_mnist task.phase=finetune", "optim.lr must be in (0, 0.01] for task.phase=finetune, which trains "
                                                "a network, got 0.3 (task=digital_mnist's rate is the lookup table's)"),
     ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "
@@ -122,6 +123,15 @@ def test_a_config_of_ones_own_named_as_a_shipped_one_is_refused(tmp_path, monkey
     code, err = call(run.main, ["--config-dir", str(tmp_path / "mine"), "task=strip_spread", "scene=strip",
                                 f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
     assert code == 2 and "task/strip_spread.yaml has the name of a config nma ships (conf/)" in err, err
+
+
+def test_a_misspelt_schema_in_a_config_file_is_named_with_the_schemas_there_are(tmp_path, monkeypatch, capsys):
+    (tmp_path / "mine" / "task").mkdir(parents=True)
+    (tmp_path / "mine" / "task" / "mine.yaml").write_text("defaults:\n  - translaton_schema\n  - _self_\n")
+    code, err = call(run.main, ["--config-dir", str(tmp_path / "mine"), "task=mine", "scene=translation",
+                                f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and ("the schema translaton_schema in a task file's defaults list is unknown; choose one of "
+                          "['digital_mnist_schema',") in err and "'translation_schema'" in err, err
 
 
 def test_a_result_never_replaces_an_earlier_one(tmp_path):
@@ -363,6 +373,8 @@ def test_export_follows_the_output_extension_and_refuses_a_contradiction(tmp_pat
 @pytest.mark.parametrize("raised, code, line", [
     (PermissionError(13, "Permission denied", "/runs/x/metrics.json"), 3, "error: Permission denied: /runs/x/metrics.json"),
     (KeyboardInterrupt(), 130, "error: interrupted (Ctrl-C)"),
+    (MemoryError(), 3, "error: out of memory: ask for a coarser fidelity (fidelity.ctrl_per_patch, "
+                       "fidelity.quad_points), a smaller batch, or a machine with more memory"),
     (Stopped("stopped by SIGTERM after step 3 of 10; checkpoint c saved", 15), 143,
      "error: stopped by SIGTERM after step 3 of 10; checkpoint c saved"),
 ])
