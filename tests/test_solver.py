@@ -266,6 +266,27 @@ def test_the_front_door_names_a_wrong_argument_and_takes_other_precisions(simula
         sim.equilibrium(X, d.astype(jnp.complex128), mat)
 
 
+@pytest.mark.parametrize("linear", ["superlu", "dense"])
+def test_a_failed_sample_keeps_its_last_equilibrium_and_a_masked_loss_a_zero_gradient(linear):
+    """A batch whose second sample fails (Newton given 6 iterations): that sample's u is the last equilibrium
+    it reached (finite, at info.load), and a loss that masks it out has an exactly zero, finite gradient
+    there, on the host and the traced driver alike."""
+    disc = discretise(scene_from_config(SMALL))
+    sim = Simulator(disc, linear, NewtonOptions(max_iters=6))
+    X, mat = sim.reference_points(sim.init_params()), material(0.07, 0.3)
+    ds = jnp.array([[0.5, 0.5], [4.0, -4.0]])
+    eq = sim.equilibrium_batch(X, ds, mat)
+    assert list(np.asarray(eq.info.status)) == [Status.CONVERGED, Status.ITERATION_LIMIT]
+    assert np.all(np.isfinite(np.asarray(eq.u)))
+
+    def masked(ds):
+        solved = sim.equilibrium_batch(X, ds, mat)
+        return jnp.sum(jnp.where((solved.info.status == Status.CONVERGED)[:, None, None], solved.u, 0.0) ** 2)
+
+    grad = np.asarray(jax.grad(masked)(ds))
+    assert np.all(np.isfinite(grad)) and np.all(grad[1] == 0.0) and np.any(grad[0] != 0.0)
+
+
 def test_a_status_carries_its_words():
     assert Status.CONVERGED.message == "converged" and Status(5) is Status.INVERTS
     assert Status.describe(np.asarray(3)) == "the iteration limit solver.max_iters was reached"

@@ -108,6 +108,8 @@ class HostBatches:
         spaces = {t: ws or self.backend.workspace() for t, ws in kept.items()}
 
         def one(i):
+            if not np.any(bars[i]):  # nothing flows back (a failed sample a loss masks out): no adjoint to solve,
+                return tuple(np.zeros_like(a) for a in (Xs[i], ds[i], mats[i]))  # nor a singular tangent's NaN
             return jax.tree_util.tree_map(
                 np.asarray, self.newton.adjoint(Xs[i], ds[i], mats[i], us[i], bars[i], spaces[int(tokens[i])]))
 

@@ -59,6 +59,8 @@ def _traced_solve(eqs, backend, opts):
     def bwd(res, cotangents):
         X, d, mat, u_free = res
         adjoint = backend.adjoint_solve(tangents_at(eqs, X, d, mat, u_free), cotangents[0])
+        # nothing flows back (a failed sample a loss masks out): zero, not a singular tangent's NaN
+        adjoint = jnp.where(jnp.any(cotangents[0] != 0), adjoint, jnp.zeros_like(adjoint))
         return pullback(eqs, X, d, mat, u_free, adjoint)
 
     solve_free.defvjp(fwd, bwd)
