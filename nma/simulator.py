@@ -94,7 +94,8 @@ class Simulator:
         """The equilibrium under actuation d (n_actuations,) of the design with reference points X
         (n_points, 2) and material [E, nu] (2,): differentiable in all three; under jit a failed solve
         says so in its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap:
-        one sample's); real numbers of another precision are taken as float64."""
+        one sample's), and a concrete argument's finiteness (under jit a non-finite input ends the solve
+        at once, info.status NONFINITE_INPUT); real numbers of another precision are taken as float64."""
         return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
             ("X", X, (self.disc.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
 
@@ -108,6 +109,10 @@ class Simulator:
         if not jax.config.jax_enable_x64:
             raise RuntimeError("equilibrium: nma solves in float64, which JAX has off: call "
                                "nma.runtime.configure_jax() before any JAX operation")
+        # a concrete value is checked here (in numpy: inside a trace a jnp operation would be staged); a
+        # traced one's solve ends at once with NONFINITE_INPUT
+        if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
+            raise ValueError(f"equilibrium: {name} must be finite, got {np.asarray(value).tolist()}")
         return value.astype(jnp.float64)
 
     def equilibrium_batch(self, X, ds, mat):

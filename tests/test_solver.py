@@ -264,6 +264,10 @@ def test_the_front_door_names_a_wrong_argument_and_takes_other_precisions(simula
             sim.equilibrium(*args)
     with pytest.raises(TypeError, match="equilibrium: d must hold real numbers, got dtype complex128"):
         sim.equilibrium(X, d.astype(jnp.complex128), mat)
+    with pytest.raises(ValueError, match=re.escape("equilibrium: mat must be finite, got [0.07, nan]")):
+        sim.equilibrium(X, d, jnp.array([0.07, np.nan]))
+    traced = jax.jit(sim.equilibrium)(X, jnp.array([np.nan, 0.0]), mat)  # under jit: the status says it
+    assert int(traced.info.status) == Status.NONFINITE_INPUT
 
 
 @pytest.mark.parametrize("linear", ["superlu", "dense"])
