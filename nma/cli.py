@@ -303,6 +303,10 @@ def exit_codes(rank: int = 0, run_dir: Path | None = None):
     except MemoryError:  # an operating-system limit the memory estimate did not foresee
         _exit("out of memory: ask for a coarser fidelity (fidelity.ctrl_per_patch, fidelity.quad_points), a "
               "smaller batch, or a machine with more memory", SYSTEM, rank)
+    except Exception as err:  # Ctrl-C inside a host callback reaches here wrapped in JAX's runtime error
+        if "KeyboardInterrupt" not in str(err):
+            raise
+        _exit("interrupted (Ctrl-C)", 128 + signal.SIGINT, rank)
 
 
 def _exit(message: str, code: int, rank: int):

@@ -25,6 +25,7 @@ from omegaconf import DictConfig
 from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
+from .errors import ConfigError
 from .schema import SimulateConfig, build, register
 from .schema.physics import model_record, resolve_auto
 
@@ -109,7 +110,14 @@ def hydra_main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    cli.preflight("simulate", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
+    def check(cfg, hydra_cfg, multirun):
+        validate(cfg)
+        out = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+        if out.is_dir() and any(p.name != cli.RUN_LOCK for p in out.iterdir()):  # a run's, or an earlier solve's
+            raise ConfigError(f"hydra.run.dir={out} holds files already: nma.simulate writes a directory of its own "
+                              f"(without hydra.run.dir each solve gets a new one)")
+
+    cli.preflight("simulate", check, sys.argv[1:])
     hydra_main()
 
 

@@ -90,6 +90,7 @@ BAD_SIMULATE = [
     ("actuation=[1.0]", "actuation must have 2 entries for scene translation, got 1: [1.0]"),
     ("actuation=[1.0,nan]", "actuation must be finite numbers"),
     ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
+    ("material.E=1e300", "material.E must be a finite number in (0, 1e30], got 1e+300"),
     ("scene.groups.0.direction=[0,0]", "scene.groups.direction of group left must not be [0, 0]"),
     ("scene.pinned=[[0,0]] scene.groups=[]", "nothing stops it rotating about (0, 0)"),
     ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
@@ -132,6 +133,16 @@ def test_a_misspelt_schema_in_a_config_file_is_named_with_the_schemas_there_are(
                                 f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
     assert code == 2 and ("the schema translaton_schema in a task file's defaults list is unknown; choose one of "
                           "['digital_mnist_schema',") in err and "'translation_schema'" in err, err
+
+
+def test_simulate_never_writes_into_a_directory_that_holds_files(tmp_path, monkeypatch, capsys):
+    """nma.simulate pointed at a training run's directory (or an earlier solve's) would replace its
+    .hydra/config.yaml and fields: refused before any work."""
+    (tmp_path / "run" / ".hydra").mkdir(parents=True)
+    (tmp_path / "run" / ".hydra" / "config.yaml").write_text("task: {name: translation}\n")
+    code, err = call(simulate.main, [f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and "holds files already: nma.simulate writes a directory of its own" in err, err
+    assert (tmp_path / "run" / ".hydra" / "config.yaml").read_text() == "task: {name: translation}\n"
 
 
 def test_a_result_never_replaces_an_earlier_one(tmp_path):
@@ -373,6 +384,7 @@ def test_export_follows_the_output_extension_and_refuses_a_contradiction(tmp_pat
 @pytest.mark.parametrize("raised, code, line", [
     (PermissionError(13, "Permission denied", "/runs/x/metrics.json"), 3, "error: Permission denied: /runs/x/metrics.json"),
     (KeyboardInterrupt(), 130, "error: interrupted (Ctrl-C)"),
+    (RuntimeError("INTERNAL: CpuCallback error: KeyboardInterrupt"), 130, "error: interrupted (Ctrl-C)"),
     (MemoryError(), 3, "error: out of memory: ask for a coarser fidelity (fidelity.ctrl_per_patch, "
                        "fidelity.quad_points), a smaller batch, or a machine with more memory"),
     (Stopped("stopped by SIGTERM after step 3 of 10; checkpoint c saved", 15), 143,

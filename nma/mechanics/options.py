@@ -7,8 +7,9 @@ from dataclasses import dataclass
 # element's mean dilatation (locking-free as nu -> 0.5)
 FORMULATIONS = ("displacement", "mixed")
 # the Neo-Hookean material's admissible moduli: nu = 0.5 is incompressible, which a displacement model
-# cannot represent
-MATERIAL_RANGES = {"E": "(0, inf)", "nu": "(-1, 0.5)"}
+# cannot represent; E up to 1e30 (any unit system's stiffest solid), beyond which the energy and its
+# residual overflow float64 and a solve could not tell equilibrium from overflow
+MATERIAL_RANGES = {"E": "(0, 1e30]", "nu": "(-1, 0.5)"}
 # nu from which the volume constraint, not the load path, sets Newton's pace: a nearly incompressible
 # material (bulk over shear modulus at least 100), which the auto settings model locking-free
 NEARLY_INCOMPRESSIBLE = 0.495
