@@ -112,6 +112,11 @@ def compose(config_name: str, overrides: list[str], config_dir: str | None = Non
         return hydra_compose(config_name, overrides=overrides, return_hydra_config=True)
 
 
+def job_dir(hydra_cfg, multirun: bool) -> Path:
+    """The directory a job writes: a sweep's job its subdirectory of the sweep directory, else hydra.run.dir."""
+    return Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+
+
 def without_hydra(cfg):
     from omegaconf import open_dict, read_write
 

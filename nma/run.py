@@ -142,7 +142,7 @@ def main() -> None:
 
     def check(cfg, hydra_cfg, multirun: bool):
         # the job's directory (a sweep's: its subdirectory), before Hydra records its config there
-        run_dir = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+        run_dir = cli.job_dir(hydra_cfg, multirun)
         settings, found = validate_in(cfg, run_dir)
         if multirun:  # what only the discretisation finds (a tracked point in a pore), for every job at once
             key = repr((settings.scene, settings.fidelity))

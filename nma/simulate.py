@@ -112,7 +112,7 @@ def hydra_main(cfg: DictConfig) -> None:
 def main() -> None:
     def check(cfg, hydra_cfg, multirun):
         validate(cfg)
-        out = Path(hydra_cfg.sweep.dir) / str(hydra_cfg.sweep.subdir) if multirun else Path(hydra_cfg.run.dir)
+        out = cli.job_dir(hydra_cfg, multirun)
         if out.is_dir() and any(p.name != cli.RUN_LOCK for p in out.iterdir()):  # a run's, or an earlier solve's
             raise ConfigError(f"hydra.run.dir={out} holds files already: nma.simulate writes a directory of its own "
                               f"(without hydra.run.dir each solve gets a new one)")
