@@ -23,6 +23,15 @@ def options(group: str) -> list[str]:
     return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
 
+def groups_help(*groups: str) -> str:
+    """The config groups a command takes, each with its options: a line each of its --help
+    (`${nma_groups:scene,fidelity}` in a command's hydra.help.template)."""
+    return "\n".join(f"{group}: {', '.join(options(group))}" for group in groups)
+
+
+OmegaConf.register_new_resolver("nma_groups", groups_help, replace=True)
+
+
 def load(group: str, name: str) -> dict:
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.exists():

@@ -29,7 +29,7 @@ def choice(default: str, options: tuple[str, ...], doc: str = ""):
     return field(default=default, metadata={"choices": tuple(options), "doc": doc})
 
 
-def _in_range(x: float, spec: str) -> bool:
+def in_range(x: float, spec: str) -> bool:
     lo, hi, lo_open, hi_open = _parse_range(spec)
     if not math.isfinite(x):
         return False
@@ -38,7 +38,7 @@ def _in_range(x: float, spec: str) -> bool:
 
 def check_range(path: str, value: float, spec: str) -> None:
     """ConfigError naming `path` unless the number `value` lies in the interval `spec`."""
-    if not _in_range(float(value), spec):
+    if not in_range(float(value), spec):
         raise ConfigError(f"{path} must be {_kind(float)} in {spec}, got {value!r}")
 
 
@@ -129,7 +129,7 @@ class Schema:
             if "range" in f.metadata:
                 spec = f.metadata["range"]
                 for x in _flat_numbers(value):
-                    if not _in_range(float(x), spec):
+                    if not in_range(float(x), spec):
                         what = _kind(int if _bare(hints.get(f.name)) is int else float)
                         if isinstance(value, (list, tuple)):
                             what = "a list of numbers, each"

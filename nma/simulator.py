@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from functools import partial
 from typing import Any, Mapping
 
@@ -20,12 +21,27 @@ from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
 from .schema import ContactConfig, Fidelity, SolverConfig, build, scene_config, scene_from_config
 from .mechanics.energy import quadrature, strain_energy
+from .mechanics.options import MATERIAL_RANGES
+from .settings import in_range
 from .runtime import available_cores
 from .solver.equations import Equations, tangents_at
 from .solver.implicit import make_equilibrium
 from .solver.linear import make_backend
 from .solver.status import Equilibrium
 from .solver.options import WARM_START_NEEDS_HOST, NewtonOptions
+
+
+def _settings(argument: str, group: str, value):
+    """One of from_config's arguments as a mapping: a preset's name (conf/<group>/<name>.yaml), a mapping,
+    a checked schema instance or None (the defaults); anything else is refused, naming the argument."""
+    if isinstance(value, str):
+        from . import config
+
+        return config.load(group, value)
+    if value is None or isinstance(value, Mapping) or dataclasses.is_dataclass(value):
+        return value
+    raise TypeError(f"Simulator.from_config: {argument} must be a mapping, a {group} preset's name "
+                    f"(conf/{group}/) or None, got {type(value).__name__} {value!r:.80}")
 
 
 class Simulator:
@@ -63,6 +79,9 @@ class Simulator:
         fidelity and contact resolved for the scene."""
         from .fidelity import resolve
 
+        scene, fidelity, solver, contact = (_settings(name, group, value) for name, group, value in (
+            ("scene", "scene", scene), ("fidelity", "fidelity", fidelity), ("solver", "solver", solver),
+            ("contact", "contact", contact)))
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
         return cls._build(scene, resolve(build(Fidelity, fidelity), scene), contact.resolved(scene), formulation, solver)
 
@@ -79,10 +98,43 @@ class Simulator:
         return self.disc.init_params()
 
     def reference_points(self, params) -> jnp.ndarray:
-        return self.disc.reference_points(params)
+        return self.disc.reference_points(self.check_params(params))
+
+    def check_params(self, params) -> dict:
+        """The design parameters as init_params() has them, checked, naming the entry: the same keys and
+        shapes, real numbers, and a concrete value finite and inside the design's box (design.bounds(),
+        where training projects them: radii in scene.radii_bounds, corner moves in scene.corner_box)."""
+        expected = self.init_params()
+        if not isinstance(params, Mapping):
+            got = f" of shape {np.shape(params)}" if hasattr(params, "shape") else ""
+            raise TypeError(f"params must be a mapping of the design's parameters {sorted(expected)} (as "
+                            f"sim.init_params() gives them), got {type(params).__name__}{got}")
+        if set(params) != set(expected):
+            raise ValueError(f"params must have the keys {sorted(expected)} of scene {self.disc.spec.name}'s "
+                             f"design, got {sorted(params)}")
+        bounds = self.disc.design.bounds()
+        for key, want in expected.items():
+            value = params[key]
+            if jnp.shape(value) != want.shape:
+                raise ValueError(f"params[{key!r}] must have shape {want.shape}, got {jnp.shape(value)}")
+            if not jnp.issubdtype(jnp.result_type(value), jnp.floating) and \
+                    not jnp.issubdtype(jnp.result_type(value), jnp.integer):
+                raise TypeError(f"params[{key!r}] must hold real numbers, got dtype {jnp.result_type(value)}")
+            if isinstance(value, jax.core.Tracer):
+                continue
+            value, (lo, hi) = np.asarray(value, dtype=np.float64), bounds[key]
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"params[{key!r}] must be finite")
+            if value.min(initial=lo) < lo or value.max(initial=hi) > hi:
+                raise ValueError(f"params[{key!r}] must lie in [{lo:g}, {hi:g}] (the design's box), got values "
+                                 f"in [{value.min():g}, {value.max():g}]")
+        return params
 
     def check_actuation(self, d) -> jnp.ndarray:
-        d = jnp.atleast_1d(jnp.asarray(d, dtype=jnp.float64))
+        try:
+            d = jnp.atleast_1d(jnp.asarray(d, dtype=jnp.float64))
+        except (TypeError, ValueError):
+            raise ConfigError(f"actuation must be {self.n_actuations} numbers, got {type(d).__name__} {d!r:.80}") from None
         if d.shape != (self.n_actuations,):
             raise ConfigError(f"actuation must have {self.n_actuations} entries for scene "
                              f"{self.disc.spec.name}, got shape {tuple(d.shape)}")
@@ -101,7 +153,11 @@ class Simulator:
 
     @staticmethod
     def _checked(name: str, value, shape: tuple):
-        value = jnp.asarray(value)
+        try:
+            value = jnp.asarray(value)
+        except TypeError:
+            raise TypeError(f"equilibrium: {name} must be an array of shape {shape} of real numbers, got "
+                            f"{type(value).__name__} {value!r:.80}") from None
         if value.shape != shape:
             raise ValueError(f"equilibrium: {name} must have shape {shape}, got {value.shape}")
         if not jnp.issubdtype(value.dtype, jnp.floating) and not jnp.issubdtype(value.dtype, jnp.integer):
@@ -113,6 +169,11 @@ class Simulator:
         # traced one's solve ends at once with NONFINITE_INPUT
         if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
             raise ValueError(f"equilibrium: {name} must be finite, got {np.asarray(value).tolist()}")
+        if name == "mat" and not isinstance(value, jax.core.Tracer):
+            for field, number in zip(("E", "nu"), np.asarray(value, dtype=np.float64)):
+                if not in_range(float(number), MATERIAL_RANGES[field]):
+                    raise ValueError(f"equilibrium: mat = [E, nu] must have {field} in {MATERIAL_RANGES[field]}, "
+                                     f"got {float(number):g}")
         return value.astype(jnp.float64)
 
     def equilibrium_batch(self, X, ds, mat):
@@ -152,7 +213,7 @@ class Simulator:
     def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
         """Eager forward solve from rest, its result on the host. Unless it converged: raises SolverError
         (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
-        d = self.check_actuation(d)
+        d, params, mat = self.check_actuation(d), self.check_params(params), self._checked("mat", mat, (2,))
         with self.cold_solves():
             eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
         if throw and not eq.converged:

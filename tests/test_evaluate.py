@@ -140,3 +140,37 @@ def test_a_directory_that_is_no_training_run_is_named_as_such(tmp_path):
     (tmp_path / "damaged" / ".hydra" / "config.yaml").write_text("task: [unclosed\n")
     with pytest.raises(ConfigError, match=r"run=.*damaged: .*config.yaml does not read \(\w+"):
         load_run(tmp_path / "damaged")
+
+
+def test_a_run_with_no_readable_checkpoint_is_named_as_the_run(tmp_path, translation_run):
+    """load_run (nma.evaluate's and nma.export's): when every checkpoint is damaged, the error names the
+    run given (run=...), not a setting of training the user never gave."""
+    from nma.train.runs import load_run
+
+    d = copy_run(translation_run, tmp_path / "run")
+    for path in (d / "checkpoints").glob("step_*.msgpack"):
+        path.write_bytes(b"garbage")
+    with pytest.raises(ConfigError, match=rf"^run={d}: no readable checkpoint in "):
+        load_run(d)
+
+
+@pytest.mark.parametrize("command, taken, refused", [
+    ("evaluate", ["fidelity", "contact", "solver"], ["task", "optim", "experiment"]),
+    ("simulate", ["scene", "fidelity", "contact", "solver"], ["task", "optim", "trainer"]),
+    ("run", ["task", "scene", "optim", "experiment"], ["task: digital_mnist_schema"])])
+def test_help_lists_the_groups_a_command_takes(command, taken, refused):
+    """Each command's --help lists the config groups it takes, each with the options in conf/, and no
+    other (nma.evaluate takes no task: the run's own).  A subprocess: the command line is what is checked."""
+    import subprocess
+    import sys
+
+    from nma.config import options
+
+    done = subprocess.run([sys.executable, "-m", f"nma.{command}", "--help"], capture_output=True, text=True,
+                          timeout=120)
+    out = done.stdout
+    assert done.returncode == 0 and out.startswith(f"python -m nma.{command} "), done.stderr[-2000:]
+    for group in taken:
+        assert f"\n{group}: {', '.join(options(group))}\n" in out
+    for line in refused:
+        assert f"\n{line}" not in out

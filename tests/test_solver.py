@@ -9,7 +9,8 @@ from nma.geometry.discretise import discretise
 from nma.schema import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
-from nma.errors import SolverError
+from nma import config
+from nma.errors import ConfigError, SolverError
 from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
@@ -268,6 +269,47 @@ def test_the_front_door_names_a_wrong_argument_and_takes_other_precisions(simula
         sim.equilibrium(X, d, jnp.array([0.07, np.nan]))
     traced = jax.jit(sim.equilibrium)(X, jnp.array([np.nan, 0.0]), mat)  # under jit: the status says it
     assert int(traced.info.status) == Status.NONFINITE_INPUT
+
+
+def test_the_eager_door_checks_the_design_and_material_naming_them(simulator):
+    """sim.solve and sim.reference_points check the design parameters (the keys, shapes and box that
+    init_params and scene.radii_bounds give) and sim.solve the material's physical range, before any
+    work: a radius outside the box is an error, not a solve that runs out of iterations."""
+    sim = simulator("translation")
+    p, d, mat = sim.init_params(), jnp.array([1.0, 0.0]), material(0.07, 0.3)
+    X = sim.reference_points(p)
+    cases = [(X, TypeError, "params must be a mapping of the design's parameters ['radii']"),
+             ({}, ValueError, "params must have the keys ['radii']"),
+             ({**p, "extra": 1.0}, ValueError, "got ['extra', 'radii']"),
+             ({"radii": p["radii"][:3]}, ValueError, "params['radii'] must have shape (24, 16), got (3, 16)"),
+             ({"radii": p["radii"] * 3}, ValueError, "params['radii'] must lie in [0.1, 0.9]"),
+             ({"radii": p["radii"] * np.nan}, ValueError, "params['radii'] must be finite")]
+    for params, kind, message in cases:
+        with pytest.raises(kind, match=re.escape(message)):
+            sim.solve(params, d, mat)
+    with pytest.raises(ValueError, match=re.escape("params['radii'] must lie in [0.1, 0.9]")):
+        sim.reference_points({"radii": p["radii"] * 0.0})
+    with pytest.raises(ValueError, match=re.escape("mat = [E, nu] must have nu in (-1, 0.5), got 0.6")):
+        sim.solve(p, d, jnp.array([0.07, 0.6]))
+    with pytest.raises(ValueError, match=re.escape("mat = [E, nu] must have E in (0, 1e30], got -1")):
+        sim.equilibrium(X, d, jnp.array([-1.0, 0.3]))
+    with pytest.raises(TypeError, match="mat must be an array of shape \\(2,\\) of real numbers, got str"):
+        sim.solve(p, d, "rubber")
+    with pytest.raises(ConfigError, match="actuation must be 2 numbers, got str"):
+        sim.solve(p, "up", mat)
+    with pytest.raises(TypeError, match="from_config: fidelity must be a mapping, a fidelity preset's name"):
+        Simulator.from_config(config.load("scene", "translation"), 5)
+
+
+def test_from_config_takes_a_presets_name():
+    """A group's option by name, as on the command line: fidelity "fast" is conf/fidelity/fast.yaml."""
+    from nma.schema import Fidelity, build
+
+    sim = Simulator.from_config("strip", "fast")
+    fast = build(Fidelity, config.load("fidelity", "fast"))
+    assert sim.disc.fidelity.ctrl_per_patch == fast.ctrl_per_patch and sim.disc.spec.name == "strip"
+    with pytest.raises(ConfigError, match="fidelity='quick' is unknown; choose one of"):
+        Simulator.from_config("strip", "quick")
 
 
 @pytest.mark.parametrize("linear", ["superlu", "dense"])

@@ -18,7 +18,8 @@ FINISHING_RESIDUAL = 1e3  # ...one whose residual is, or just was, within this f
 def close_step(opts: NewtonOptions, s: State, rnorm, tol) -> State:
     """The state with its load step closed where a corrector's residual rnorm meets the step's tolerance
     (converged at full load; the next increment grown after a quick step, never past full load)."""
-    step_done = (~s.predictor) & (rnorm <= step_tolerance(opts, s.lam, tol))
+    # a state that is not finite never closes a step, whatever its residual's norm says
+    step_done = (~s.predictor) & (rnorm <= step_tolerance(opts, s.lam, tol)) & jnp.all(jnp.isfinite(s.u))
     finished = step_done & (s.lam >= 1.0)
     lam_conv = jnp.where(step_done, s.lam, s.lam_conv)
     u_conv = jnp.where(step_done, s.u, s.u_conv)
