@@ -16,7 +16,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from . import cli, sweep
+from . import cli, signals, sweep
 from .config import CONF_DIR
 from .schema import TrainConfig, register
 from .schema.physics import describe_model, model_record
@@ -122,7 +122,7 @@ def hydra_main(cfg: DictConfig) -> None:
             if world.is_root:
                 cli.hold_run_dir(run_dir, "this job's directory")
             settings = validate_in(cfg, run_dir)[0]
-            with cli.stop_on_signals(settings.trainer.stop_grace) as stop:
+            with signals.stop_on_signals(settings.trainer.stop_grace) as stop:
                 train(settings, run_dir, OmegaConf.to_container(cfg, resolve=True), stop)
     except SystemExit as exit_:
         if not (in_sweep and 0 < int(exit_.code or 0) < 128):  # a signal stops the sweep too

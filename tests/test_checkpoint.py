@@ -197,7 +197,7 @@ def test_a_stop_signal_ends_a_step_that_never_finishes_within_its_grace():
     thread sleeps on, as a step stuck in compiled code would) is not waited for past the grace period:
     the process ends with 128 + SIGTERM and says why."""
     code = ("import os, signal, time\n"
-            "from nma.cli import stop_on_signals\n"
+            "from nma.signals import stop_on_signals\n"
             "with stop_on_signals(grace=1.0):\n"
             "    os.kill(os.getpid(), signal.SIGTERM)\n"
             "    time.sleep(60)\n")

@@ -49,10 +49,10 @@ def latest(directory: Path):
     return found[-1] if found else None
 
 
-def load_latest(directory: Path, warn: bool = True):
+def load_latest(directory: Path, warn: bool = True, what: str = "trainer.resume"):
     """(path, raw state dict) of the newest checkpoint that reads back, or None if there is none.
     Unreadable ones (truncated, empty, not msgpack) are reported by path and passed over; if every
-    checkpoint is unreadable that is bad data: ConfigError naming them."""
+    checkpoint is unreadable that is bad data: ConfigError naming them, and `what` asked for them."""
     found = sorted(_complete(directory), reverse=True) if directory.exists() else []
     bad = []
     for _, path in found:
@@ -68,7 +68,7 @@ def load_latest(directory: Path, warn: bool = True):
             continue
         return path, raw
     if bad:
-        raise ConfigError(f"trainer.resume: no readable checkpoint in {directory}: {'; '.join(bad)}")
+        raise ConfigError(f"{what}: no readable checkpoint in {directory}: {'; '.join(bad)}")
     return None
 
 

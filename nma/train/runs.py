@@ -59,7 +59,7 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
         raise ConfigError(f"run={run}: {exc}") from None
-    found = checkpoint.load_latest(run / "checkpoints")
+    found = checkpoint.load_latest(run / "checkpoints", what=f"run={run}")
     if found is None:
         raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
     path, raw = found

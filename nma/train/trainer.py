@@ -91,7 +91,7 @@ class Trainer:
         run's newest checkpoint: how a phase starts from the one before it.  Its geometry must fit (a
         design carries over only to its own scene); with `exact` (re-evaluating the run itself) every
         parameter must, or the checkpoint is not of this config: ConfigError either way."""
-        found = checkpoint.load_latest(run / "checkpoints")
+        found = checkpoint.load_latest(run / "checkpoints", what=f"run={run}" if exact else f"trainer.init_from={run}")
         if found is None:
             raise ConfigError(f"trainer.init_from: {run} holds no checkpoint")
         path, raw = found
@@ -331,10 +331,11 @@ class Trainer:
 
     def fit(self, on_eval=None, stop=None) -> Evaluation:
         """Train to trainer.steps (resuming first if asked), evaluating and checkpointing on schedule;
-        the last evaluation.  `stop()` (nma.cli.stop_on_signals), asked after every step, returns a
+        the last evaluation.  `stop()` (nma.signals.stop_on_signals), asked after every step, returns a
         signal's number to stop there: the step is checkpointed, then Stopped is raised."""
-        if self.cfg.resume != "false":
-            self.try_resume()
+        if self.cfg.resume != "false" and not self.try_resume():
+            log.info("trainer.resume=%s: no checkpoint in %s yet; starting at step 0", self.cfg.resume,
+                     self.checkpoint_dir())
         bar, quiet = None, contextlib.nullcontext()
         if self.cfg.progress and self.world.is_root:
             from tqdm.auto import tqdm
