@@ -45,6 +45,39 @@ def _settings(argument: str, group: str, value):
 
 
 class Simulator:
+    """A scene discretised once, with its linear solver and Newton's options: what every task and
+    command solves with.
+
+    Build one with `from_config` (plain mappings or preset names, as a script would) or `from_settings`
+    (a command's checked settings); the constructor takes the discretisation and Newton's options as
+    Python objects.
+
+    Args:
+        disc: The discretisation (`nma.geometry.discretise.discretise`): patches, merged control points,
+            actuated groups, supports and quadrature.
+        linear: A linear backend registered in `nma.solver.linear`: `auto` (PARDISO where Intel MKL
+            installs, else SuperLU), `pardiso`, `superlu` or `dense` (traced: runs under `jit`/`vmap`).
+        options: Newton's options (`nma.solver.options.NewtonOptions`).
+        workers: Threads solving a batch's samples at once (host backends); 0: one per core.
+
+    Raises:
+        ConfigError: Options the backend cannot serve (saddle escape without inertia, warm starts
+            on a traced backend).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> from nma.mechanics.material import material
+        >>> sim = Simulator.from_config("translation", fidelity="fast")
+        >>> sim.n_actuations
+        2
+        >>> X = sim.reference_points(sim.init_params())
+        >>> u, info = sim.equilibrium(X, jnp.array([1.0, -0.5]), material(0.07, 0.3))
+        >>> int(info.status)  # Status.CONVERGED
+        1
+        >>> u.shape == X.shape
+        True
+    """
+
     def __init__(self, disc: Discretisation, linear: str = "auto", options: NewtonOptions = NewtonOptions(),
                  workers: int = 0):
         self.disc = disc
@@ -66,9 +99,17 @@ class Simulator:
 
     @classmethod
     def from_settings(cls, s, workers: int | None = None) -> "Simulator":
-        """A simulator from a command's checked settings: any object with scene, fidelity, contact,
-        material and solver as the commands check and resolve them (TrainConfig, SimulateConfig);
-        `workers` in place of solver.workers."""
+        """A simulator from a command's checked settings: every command builds its simulator here.
+
+        Args:
+            s: Any object with `scene`, `fidelity`, `contact`, `material` and `solver` as the commands
+                check and resolve them (`TrainConfig`, `SimulateConfig`): `fidelity=auto` and the auto
+                choices already made.
+            workers: Threads in place of `solver.workers`; None: `solver.workers`.
+
+        Returns:
+            The simulator of those settings.
+        """
         return cls._build(s.scene, s.fidelity, s.contact, s.material.formulation, s.solver, workers)
 
     @classmethod
@@ -76,7 +117,33 @@ class Simulator:
                     solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
                     formulation: str = "displacement") -> "Simulator":
         """A simulator from plain mappings, without Hydra: each checked as the commands check it, the
-        fidelity and contact resolved for the scene."""
+        fidelity and contact resolved for the scene.
+
+        Each settings argument is a mapping of that config group's fields, a preset's name
+        (`conf/<group>/<name>.yaml`), a checked schema instance, or None for the defaults.
+
+        Args:
+            scene: The scene (`nma.schema.scene.SceneConfig`'s fields, or `"translation"` etc.).
+            fidelity: The discretisation; None: the scene's own (`fidelity=scene`).
+            solver: Newton's and the linear solver's settings; None: the defaults.
+            contact: Contact between pore walls; None: none. `{"enabled": None}` follows the scene, as
+                the commands' `contact=auto` does.
+            formulation: `displacement` or `mixed` (locking-free as nu -> 0.5).
+
+        Returns:
+            The simulator.
+
+        Raises:
+            ConfigError: A setting out of its range, or a scene that cannot be a physical set-up, with
+                the field named.
+
+        Examples:
+            >>> from nma import config
+            >>> sim = Simulator.from_config({**config.load("scene", "translation"), "radii_init": 0.3},
+            ...                             fidelity={"quad_points": 3}, solver="superlu")
+            >>> sim.init_params()["radii"].shape
+            (24, 16)
+        """
         from .fidelity import resolve
 
         scene, fidelity, solver, contact = (_settings(name, group, value) for name, group, value in (
@@ -92,12 +159,23 @@ class Simulator:
 
     @property
     def n_actuations(self) -> int:
+        """The number of actuations a solve takes: one per actuation index of the scene's groups."""
         return self.disc.n_actuations
 
     def init_params(self):
+        """The initial design: a dict of arrays holding what the scene models (`radii` (n_porous_cells, 16),
+        and `corners`, `pore_radii`, `colours` where the scene has them), at the scene's initial values."""
         return self.disc.init_params()
 
     def reference_points(self, params) -> jnp.ndarray:
+        """The design map: the reference control points of a design, differentiable in `params`.
+
+        Args:
+            params: The design, as `init_params()` gives it (checked by `check_params`).
+
+        Returns:
+            The merged reference control points X, shape (n_points, 2).
+        """
         return self.disc.reference_points(self.check_params(params))
 
     def check_params(self, params) -> dict:
@@ -147,7 +225,26 @@ class Simulator:
         (n_points, 2) and material [E, nu] (2,): differentiable in all three; under jit a failed solve
         says so in its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap:
         one sample's), and a concrete argument's finiteness (under jit a non-finite input ends the solve
-        at once, info.status NONFINITE_INPUT); real numbers of another precision are taken as float64."""
+        at once, info.status NONFINITE_INPUT); real numbers of another precision are taken as float64.
+
+        Its derivative is implicit: the backward pass solves one adjoint system with the tangent at the
+        solution and returns cotangents for X, d and mat.  It works under `jax.jit`, `jax.grad` and
+        `jax.vmap` (a batch: see `equilibrium_batch`); it never raises for a failed solve.
+
+        Args:
+            X: Reference control points (n_points, 2), from `reference_points`.
+            d: Actuations (n_actuations,): each actuated group moves by d[actuation] * direction.
+            mat: The material [E, nu] (2,), as `nma.mechanics.material.material(E, nu)` makes it.
+
+        Returns:
+            An `Equilibrium` (`u, info = ...`): the displacement of every control point (n_points, 2)
+            and Newton's statistics; `info.status` is a `Status` (1: converged).  A failed solve's `u`
+            is its last converged state, at load factor `info.load`.
+
+        Raises:
+            ValueError: A concrete argument of the wrong shape, not finite, or a material out of range.
+            TypeError: An argument that is not an array of real numbers.
+        """
         return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
             ("X", X, (self.disc.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
 
@@ -212,7 +309,29 @@ class Simulator:
 
     def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
         """Eager forward solve from rest, its result on the host. Unless it converged: raises SolverError
-        (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`)."""
+        (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`).
+
+        Args:
+            params: The design, as `init_params()` gives it.
+            d: Actuations (n_actuations,).
+            mat: The material [E, nu].
+            throw: Raise for a failed solve (True) or return it (False).
+
+        Returns:
+            The `Equilibrium`, its arrays as numpy arrays.
+
+        Raises:
+            SolverError: The solve did not converge (with `throw=True`): the message says the status,
+                the load factor reached and the last residual.
+            ConfigError: Actuations of the wrong number or not finite.
+
+        Examples:
+            >>> from nma.mechanics.material import material
+            >>> sim = Simulator.from_config("translation", fidelity="fast")
+            >>> eq = sim.solve(sim.init_params(), [0.5, 0.5], material(0.07, 0.3))
+            >>> bool(eq.converged), eq.message
+            (True, 'converged')
+        """
         d, params, mat = self.check_actuation(d), self.check_params(params), self._checked("mat", mat, (2,))
         with self.cold_solves():
             eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
@@ -231,12 +350,30 @@ class Simulator:
     def negative_eigenvalues(self, X, d, mat, u) -> int | None:
         """Unstable modes of an equilibrium u: the number of negative eigenvalues of the Hessian K_ff
         there (0: a stable equilibrium, a local minimum of the energy; > 0: a saddle), or None where
-        the linear backend does not report inertia (only PARDISO's LDL^T does)."""
+        the linear backend does not report inertia (only PARDISO's LDL^T does).
+
+        Args:
+            X: Reference control points (n_points, 2).
+            d: The actuations the equilibrium was solved under.
+            mat: The material [E, nu].
+            u: The equilibrium's displacement (n_points, 2).
+
+        Returns:
+            The count of unstable modes, or None without a backend that reports inertia.
+        """
         if not getattr(self.backend, "reports_inertia", False):
             return None
         u_free = jnp.asarray(u).reshape(-1)[self.equations.free]
         return self.backend.negative_eigenvalues(self._tangents(X, jnp.asarray(d), mat, u_free))
 
     def tracked(self, X, u) -> dict[str, jnp.ndarray]:
-        """Deformed positions of the scene's tracked material points."""
+        """Deformed positions of the scene's tracked material points.
+
+        Args:
+            X: Reference control points (n_points, 2).
+            u: Displacement of every control point (n_points, 2), as an `Equilibrium` holds it.
+
+        Returns:
+            The scene's `tracked` names, each mapped to its deformed [x, y]; differentiable in X and u.
+        """
         return self.disc.tracked_points(X + u)

@@ -104,7 +104,28 @@ def _rank(rows: list[list[float]], tol: float) -> tuple[int, list[list[float]]]:
 
 @dataclass
 class SceneConfig(Schema):
-    """A cell grid: tokens P (porous), S (solid), . (empty), listed top row first."""
+    """A cell grid: tokens P (porous), S (solid), . (empty), listed top row first.
+
+    The scene specification: the structure as data, what `conf/scene/<name>.yaml` holds.  Its fields
+    (each with its default and range in docs/reference/settings.md): `name`, `cells`, `cell_size` (or
+    `x_breaks`, `y_breaks`), the actuated `groups` (`GroupConfig`), the `supports` (`SupportConfig`)
+    and `pinned` points that hold the body, the `tracked` material points a task reads, the design's
+    box (`radii_init`, `radii_bounds`, `corner_box`, `locked_nodes`), shape matching's `central_pore`,
+    digital MNIST's `colours`, and `round_pore_corners`, `contact` and `fidelity`.  Every field is
+    checked on construction, and `spec()` refuses a well-formed scene that cannot be a physical set-up
+    (a body nothing holds, a group off the outer boundary, cells in pieces), naming the field.
+
+    Examples:
+        >>> strip = SceneConfig(name="strip", cells="PP\\nPP", tracked={"tip": [10, 5]},
+        ...     groups=[GroupConfig(name="pull", segment=[[10, 0], [10, 10]], actuation=0, direction=[1, 0])],
+        ...     supports=[SupportConfig(segment=[[0, 0], [0, 10]], kind="clamped")])
+        >>> strip.spec().name
+        'strip'
+        >>> SceneConfig(name="strip", cells="PP\\nPP", radii_init=1.0)
+        Traceback (most recent call last):
+        ...
+        nma.errors.ConfigError: scene.radii_init must be ...
+    """
     prefix: ClassVar[str] = "scene"
     name: str = MISSING  # the scene's name (a task runs on the scene of its own name)
     cells: str = MISSING  # the grid, a row of tokens a line, top row first

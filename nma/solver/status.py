@@ -14,7 +14,20 @@ from ..mechanics.options import NEARLY_INCOMPRESSIBLE
 
 
 class Status(enum.IntEnum):
-    """A solve's status; an int inside traced code (jnp.where takes the members as they are)."""
+    """A solve's status; an int inside traced code (jnp.where takes the members as they are).
+
+    `CONVERGED` is the only success.  `INCREMENT_TOO_SMALL`, `ITERATION_LIMIT`, `NONFINITE_INPUT` and
+    `INVERTS` end a failed solve; `WALLS_CROSS` marks a warm start that is redone from rest, and
+    `RUNNING` a solve not yet ended.  Each member's `message` says it in words.
+
+    Examples:
+        >>> Status.CONVERGED.message
+        'converged'
+        >>> Status.describe(3)
+        'the iteration limit solver.max_iters was reached'
+        >>> Status.describe(99)
+        'status 99'
+    """
     RUNNING = 0
     CONVERGED = 1
     INCREMENT_TOO_SMALL = 2
@@ -49,6 +62,18 @@ _MESSAGES = {
 
 
 class NewtonInfo(NamedTuple):
+    """How a Newton solve went (arrays: under vmap each gains the batch axis).
+
+    Attributes:
+        status: How it ended, a `Status` as an integer.
+        iterations: Newton iterations, predictors and correctors together.
+        load_steps: Load steps that converged.
+        cuts: Load steps that failed and were halved.
+        load: The load factor of the last converged state (1: full load).
+        residual: The norm of the out-of-balance force at the last iterate.
+        tolerance: The residual the solve had to reach.
+        residual_history: The residual of every iteration, NaN past the last.
+    """
     status: jnp.ndarray
     iterations: jnp.ndarray
     load_steps: jnp.ndarray
@@ -63,7 +88,25 @@ class Equilibrium(NamedTuple):
     """What a solve returns: the displacement of every control point and how Newton got there (its
     status, statistics and residual history).  A pytree, so traced, batched (vmap: every field gains
     the batch axis) and differentiated solves return it too; `u, info = equilibrium` unpacks it.  The
-    host-side properties read a solved one; a failed solve's error says how far it got and why."""
+    host-side properties read a solved one; a failed solve's error says how far it got and why.
+
+    Attributes:
+        u: The displacement of every control point (n_points, 2); of a failed solve, its last
+            converged state (at load factor `info.load`).
+        info: Newton's statistics (`NewtonInfo`).
+
+    Examples:
+        >>> import numpy as np
+        >>> info = NewtonInfo(*(np.array(v) for v in (Status.ITERATION_LIMIT, 200, 3, 1, 0.5, 1e-3, 1e-10,
+        ...                                            [np.nan])))
+        >>> eq = Equilibrium(np.zeros((4, 2)), info)
+        >>> bool(eq.converged), eq.message
+        (False, 'the iteration limit solver.max_iters was reached')
+        >>> print(eq.error("demo: "))
+        demo: Newton solve failed: the iteration limit solver.max_iters was reached; converged up to load
+        factor 0.5 of 1 after 200 iterations, 3 load steps and 1 cuts; last residual 1.000e-03 (tolerance
+        1.000e-10)
+    """
     u: jnp.ndarray     # (n_points, 2); of a failed solve, its last converged state (at load info.load)
     info: NewtonInfo
 

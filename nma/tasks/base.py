@@ -12,23 +12,69 @@ import numpy as np
 
 
 class Task:
+    """The task protocol: what the trainer asks of a task.
+
+    A task must give `sample`, `observe`, `targets`, `metric` and `eval_set`; the rest have defaults
+    (an L1 `loss`, the mean as `aggregate`, figures' words).  A task is built by a factory registered in
+    `nma.registry.TASKS` under its scene's name, with its settings' schema (a
+    `nma.tasks.schemas.TaskConfig` subclass); docs/how-to/python-task.md shows one from outside nma.
+
+    Attributes:
+        name: The scene the task runs on.
+        d_max: The largest actuation: the network's outputs are `d_max * tanh(.)`.
+        metric_name: The metric's name in logs and metrics.json (`mean_pointer_error`).
+        metric_unit: Its unit in words (`length units (cell = 5)`).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> class Reach(Task):
+        ...     name, d_max, metric_name, metric_unit = "strip", 3.0, "error", "length units"
+        ...     def targets(self, t):
+        ...         return t
+        >>> float(Reach().loss(jnp.array([1.0, 2.0]), jnp.array([1.5, 2.0])))
+        0.25
+        >>> float(Reach().failed_score(0.2, 0.5))  # a failure never scores better than doing nothing
+        0.5
+    """
     name: str
     d_max: float
     metric_name: str
     metric_unit: str
 
     def sample(self, key, n: int) -> jnp.ndarray:  # (n, k) descriptors
+        """Training descriptors.
+
+        Args:
+            key: A JAX random key.
+            n: How many.
+
+        Returns:
+            (n, k) descriptors t: targets, angles, shapes, images.
+        """
         raise NotImplementedError
 
     def net_input(self, t: jnp.ndarray) -> jnp.ndarray:
+        """The network's input for descriptors t (by default t itself)."""
         return t
 
     def observe(self, sim, geom, X, u, mat) -> jnp.ndarray:
         """What the task reads off an equilibrium: geometry parameters, reference points, displacement,
-        and the material (for what depends on it: a reaction force)."""
+        and the material (for what depends on it: a reaction force).
+
+        Args:
+            sim: The `Simulator` (for `sim.tracked` and the discretisation).
+            geom: The design parameters.
+            X: Reference control points (n_points, 2).
+            u: The equilibrium's displacement (n_points, 2).
+            mat: The material [E, nu].
+
+        Returns:
+            The observed output of one sample, differentiable in geom, X, u and mat.
+        """
         raise NotImplementedError
 
     def targets(self, t: jnp.ndarray) -> jnp.ndarray:  # what observe should equal, same shape
+        """What `observe` should equal for descriptor t, in the same shape."""
         raise NotImplementedError
 
     def loss(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
@@ -36,9 +82,11 @@ class Task:
         return jnp.mean(jnp.abs(out - self.targets(t)))
 
     def metric(self, out: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
+        """One sample's metric, in `metric_unit`, from its observed output and descriptor."""
         raise NotImplementedError
 
     def eval_set(self) -> jnp.ndarray:
+        """The fixed evaluation descriptors (m, k): the same at every evaluation."""
         raise NotImplementedError
 
     higher_is_better = False  # the metric's direction (an error falls, a count of right answers rises)
