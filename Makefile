@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all settings-reference clean
+.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-all settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -22,7 +22,7 @@ install:            ## a virtual environment in .venv with the locked versions t
 lock:               ## refresh requirements.lock to the newest versions pyproject.toml allows, install them and run the fast suite on them
 	test -x $(VENV)/bin/python || $(BASE_PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "uv>=0.9,<1"
-	$(VENV)/bin/python -m uv pip compile pyproject.toml --extra test --universal --python-version 3.11 --fork-strategy fewest \
+	$(VENV)/bin/python -m uv pip compile pyproject.toml --extra test --extra docs --universal --python-version 3.11 --fork-strategy fewest \
 		--upgrade --quiet --custom-compile-command "make lock" -o $(LOCK)
 	$(MAKE) install
 	$(MAKE) test PYTHON=$(VENV)/bin/python
@@ -69,7 +69,7 @@ simulate:           ## one forward solve of the translation scene
 run:                ## train the default experiment (translation, 100 steps)
 	$(PYTHON) -m nma.run
 
-tutorial:           ## docs/tutorial.md: the strip's tasks posed in YAML (joint, frozen; a pore on demand) -> outputs/tutorial/
+tutorial:           ## docs/tutorials/own-scene-and-task.md: the strip's tasks posed in YAML (joint, frozen; a pore on demand) -> outputs/tutorial/
 	$(PYTHON) -m nma.run task=strip_spread scene=strip hydra.run.dir=outputs/tutorial/joint
 	$(PYTHON) -m nma.run task=strip_spread scene=strip trainer.freeze_geometry=true hydra.run.dir=outputs/tutorial/frozen
 	$(PYTHON) -m nma.run task=strip_pore scene=strip hydra.run.dir=outputs/tutorial/pore
@@ -92,9 +92,12 @@ repro-shape-matching: ## pore shape matching (with contact): joint vs frozen vs 
 repro-all:          ## every reproduction above, in two lanes side by side (one Newton thread each): the whole paper
 	$(PYTHON) experiments/repro_all.py
 
-settings-reference:  ## docs/settings.md from the config schema (a test fails where it is stale)
+settings-reference:  ## docs/reference/settings.md from the config schema (a test fails where it is stale)
 	$(PYTHON) experiments/settings_reference.py
 
+docs:               ## the documentation site (MkDocs, API reference from docstrings), warnings as errors -> outputs/site/
+	NO_MKDOCS_2_WARNING=1 $(PYTHON) -m mkdocs build --strict --site-dir outputs/site
+
 clean:              ## remove outputs/ results and __pycache__
-	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro outputs/tutorial outputs/debug .pytest_cache
+	rm -rf outputs/simulate outputs/bench outputs/runs outputs/multirun outputs/repro outputs/tutorial outputs/debug outputs/site .pytest_cache
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

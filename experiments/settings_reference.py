@@ -1,8 +1,8 @@
-"""docs/settings.md from the config schema: every setting of every config group, its type, default,
+"""docs/reference/settings.md from the config schema: every setting of every config group, its type, default,
 allowed values and meaning (the field's doc, or the comment beside it in the schema's source).
 
-    python experiments/settings_reference.py            # writes docs/settings.md
-    python experiments/settings_reference.py --check    # exits 1 where docs/settings.md differs
+    python experiments/settings_reference.py            # writes docs/reference/settings.md
+    python experiments/settings_reference.py --check    # exits 1 where docs/reference/settings.md differs
 
 tests/test_docs.py checks that the page is what this script writes from today's schema.
 """
@@ -22,7 +22,7 @@ from nma.schema.commands import OutputConfig
 from nma.settings import Schema
 from nma.tasks.schemas import TASK_SCHEMAS
 
-PAGE = Path(__file__).resolve().parent.parent / "docs" / "settings.md"
+PAGE = Path(__file__).resolve().parent.parent / "docs" / "reference" / "settings.md"
 INTRO = """# Settings
 
 Every setting of every config group: its type, default, allowed values and meaning.  Give any of them on
@@ -107,7 +107,7 @@ def page() -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true", help="exit 1 where docs/settings.md is not what it would write")
+    ap.add_argument("--check", action="store_true", help="exit 1 where docs/reference/settings.md is not what it would write")
     if ap.parse_args().check:
         sys.exit(0 if PAGE.read_text() == page() else 1)
     PAGE.write_text(page())

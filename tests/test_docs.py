@@ -1,5 +1,7 @@
-"""The documentation cannot rot: every ```python block of README.md and docs/*.md runs, and every
-relative link (and its #anchor) points at something that exists.  Bash blocks are not run."""
+"""The documentation cannot rot: every ```python block of README.md and docs/**/*.md runs, every relative
+link (and its #anchor) points at something that exists, every page is reachable from README.md and in
+the site's nav, the site builds with warnings as errors, and the front door's docstring examples run.
+Bash blocks are not run."""
 from __future__ import annotations
 
 import os
@@ -12,7 +14,7 @@ from typing import NamedTuple
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 PYTHON = {"python", "py", "python3"}
 TIMEOUT_S = 120  # a guard against a hang; the blocks take seconds
 
@@ -56,7 +58,7 @@ def block_id(b: Block) -> str:
 
 def test_pages_exist():
     assert (ROOT / "README.md").is_file()
-    assert len(PAGES) > 1, "docs/*.md: no pages"
+    assert len(PAGES) > 1, "docs/**/*.md: no pages"
 
 
 def test_there_are_python_blocks_to_run():
@@ -124,11 +126,64 @@ RELATIVE = [(page, target) for page in PAGES for target in links(page)
             if not re.match(r"^[a-zA-Z][a-zA-Z0-9+.-]*:", target)]  # http:, https:, mailto: are not checked
 
 
-def test_docs_link_to_every_page():
-    """README.md's "Where to go next" links every docs page."""
-    linked = {(ROOT / t.split("#")[0]).resolve() for p, t in RELATIVE if p.name == "README.md"}
-    missing = [str(p.relative_to(ROOT)) for p in PAGES[1:] if p.resolve() not in linked]
-    assert not missing, f"README.md does not link {missing}"
+def test_every_page_is_reachable_from_the_readme():
+    """A reader who starts at README.md reaches every docs page by following links (README links the four
+    parts' indexes, each index its pages)."""
+    seen, todo = {(ROOT / "README.md").resolve()}, [ROOT / "README.md"]
+    while todo:
+        page = todo.pop()
+        for target in links(page):
+            path = target.split("#")[0]
+            if re.match(r"^[a-zA-Z][a-zA-Z0-9+.-]*:", target) or not path.endswith(".md"):
+                continue
+            where = (page.parent / path).resolve()
+            if where.is_file() and where not in seen:
+                seen.add(where)
+                todo.append(where)
+    missing = [str(p.relative_to(ROOT)) for p in PAGES[1:] if p.resolve() not in seen]
+    assert not missing, f"no chain of links from README.md reaches {missing}"
+
+
+def test_the_readme_links_the_four_parts():
+    linked = {t.split("#")[0] for t in links(ROOT / "README.md")}
+    for part in ("tutorials", "how-to", "reference", "explanation"):
+        assert f"docs/{part}/index.md" in linked, f"README.md does not link docs/{part}/index.md"
+
+
+def nav_pages(node) -> list[str]:
+    """The pages named in mkdocs.yml's nav, however nested."""
+    if isinstance(node, str):
+        return [node]
+    if isinstance(node, dict):
+        return [p for value in node.values() for p in nav_pages(value)]
+    return [p for item in node for p in nav_pages(item)]
+
+
+def test_every_page_is_in_the_sites_nav():
+    import yaml
+
+    nav = set(nav_pages(yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"]))
+    pages = {str(p.relative_to(ROOT / "docs")) for p in PAGES[1:]}
+    assert pages - nav == set(), f"mkdocs.yml's nav leaves out {sorted(pages - nav)}"
+    assert nav - pages == set(), f"mkdocs.yml's nav names pages that do not exist: {sorted(nav - pages)}"
+
+
+# The pages say what nma does now; what was measured when, and what changed, is git's and the results'.
+HISTORY = ["before the change", "used to", "previously", "earlier run", "was measured", "were measured",
+           "measured on", "this session", "predate", "as before", "than before", "before it was",
+           "became the default", "is now the default", "at the time"]
+MAX_BEFORE = 6  # "before any work" and its kind are fine; a page that keeps saying "before" tells a story
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_page_narrates_earlier_runs(page: Path):
+    text = " ".join(prose(page).lower().split())
+    told = [phrase for phrase in HISTORY if re.search(rf"\b{re.escape(phrase)}\b", text)]
+    assert not told, f"{page.relative_to(ROOT)} narrates history: {told}"
+    if page == ROOT / "docs" / "reference" / "settings.md":
+        return  # generated: the schema's own words for each setting ("iterations before a load step fails")
+    count = len(re.findall(r"\bbefore\b", text))
+    assert count <= MAX_BEFORE, f"{page.relative_to(ROOT)} says 'before' {count} times (at most {MAX_BEFORE})"
 
 
 @pytest.mark.parametrize("page,target", RELATIVE,
@@ -170,16 +225,63 @@ def test_the_readme_is_a_quick_start():
 
 
 def test_the_settings_reference_is_the_schemas():
-    """docs/settings.md is what experiments/settings_reference.py writes from today's schema: every
-    setting of every group, with its type, default, allowed values and meaning."""
+    """docs/reference/settings.md is what experiments/settings_reference.py writes from today's schema:
+    every setting of every group, with its type, default, allowed values and meaning."""
     sys.path.insert(0, str(ROOT / "experiments"))
     try:
         import settings_reference
     finally:
         sys.path.remove(str(ROOT / "experiments"))
-    assert (ROOT / "docs" / "settings.md").read_text() == settings_reference.page(), \
-        "docs/settings.md is stale: python experiments/settings_reference.py"
+    page = ROOT / "docs" / "reference" / "settings.md"
+    assert settings_reference.PAGE == page
+    assert page.read_text() == settings_reference.page(), \
+        "docs/reference/settings.md is stale: python experiments/settings_reference.py"
     text = settings_reference.page()
     for key in ("material.nu", "solver.corrector", "optim.lr_scale.radii", "trainer.max_failed_steps", "scene.groups"):
         assert f"`{key}`" in text
 
+
+# --- the site -----------------------------------------------------------------------------------------
+
+SITE_TIMEOUT_S = 180  # a guard; the build takes seconds
+
+
+def test_the_site_builds_with_warnings_as_errors(tmp_path):
+    """`make docs`: MkDocs with the Material theme and the API reference from docstrings (mkdocstrings),
+    --strict, so a broken link, anchor, nav entry or docstring fails here as in `make docs`."""
+    pytest.importorskip("mkdocs", reason="the docs extra (pip install -e '.[docs]'; make install has it)")
+    try:
+        done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+                              cwd=ROOT, capture_output=True, text=True, timeout=SITE_TIMEOUT_S,
+                              env=dict(os.environ, NO_MKDOCS_2_WARNING="1"))
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"mkdocs build did not finish in {SITE_TIMEOUT_S} s")
+    assert done.returncode == 0, done.stderr[-4000:]
+    for page in ("index.html", "reference/api/index.html", "reference/settings/index.html"):
+        assert (tmp_path / "site" / page).is_file(), page
+    api = (tmp_path / "site" / "reference" / "api" / "index.html").read_text()
+    for name in ("Simulator", "equilibrium", "Equilibrium", "Status", "Task", "SceneConfig"):
+        assert name in api, f"the API reference does not document {name}"
+
+
+# The library's front door: each module's docstring examples (>>> lines) run, as doctest reads them.
+FRONT_DOOR = ["nma.simulator", "nma.solver.status", "nma.tasks.base", "nma.schema.scene", "nma.schema.compose"]
+
+
+def test_the_front_doors_docstring_examples_run():
+    code = ("import doctest, importlib, sys\n"
+            "from nma.runtime import configure_jax\n"
+            "configure_jax()\n"
+            "tried = failed = 0\n"
+            f"for name in {FRONT_DOOR!r}:\n"
+            "    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS "
+            "| doctest.NORMALIZE_WHITESPACE)\n"
+            "    tried, failed = tried + result.attempted, failed + result.failed\n"
+            "print(tried, failed)\n"
+            "sys.exit(1 if failed or not tried else 0)\n")
+    try:
+        done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                              timeout=TIMEOUT_S, env=dict(os.environ, MPLBACKEND="Agg"))
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the docstring examples did not finish in {TIMEOUT_S} s")
+    assert done.returncode == 0, f"{done.stdout[-4000:]}\n{done.stderr[-2000:]}"
