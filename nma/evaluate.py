@@ -1,6 +1,6 @@
 """Does a trained design survive refinement?  A run re-evaluated at another discretisation.
 
-    python -m nma.evaluate run=outputs/runs/translation/<date>/<time> fidelity=fine
+    python -m nma.evaluate run=outputs/runs/translation/<date>_<time> fidelity=fine
     python -m nma.evaluate run=... fidelity.ctrl_per_patch=11 fidelity.quad_points=4
 
 Takes the run's newest checkpoint (network and geometry), evaluates the task's evaluation set (or

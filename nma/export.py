@@ -1,6 +1,6 @@
 """A trained design as a file to make it from, and the numbers a fabricator checks first.
 
-    python -m nma.export run=outputs/runs/translation/<date>/<time> format=svg|dxf|stl [scale=2] [thickness=10]
+    python -m nma.export run=outputs/runs/translation/<date>_<time> format=svg|dxf|stl [scale=2] [thickness=10]
 
 Writes <run>/export/design.<format> (or `output=`) and fabrication.json beside it, and prints the report
 as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per length unit of the scene.
