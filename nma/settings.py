@@ -29,6 +29,40 @@ def choice(default: str, options: tuple[str, ...], doc: str = ""):
     return field(default=default, metadata={"choices": tuple(options), "doc": doc})
 
 
+def option(default: Any, doc: str):
+    """A setting with no range (a flag, a name), documented where it is declared."""
+    return field(default=default, metadata={"doc": doc})
+
+
+def like(options_cls: type, name: str, default: Any = DC_MISSING, doc: str = "", choices: tuple = ()):
+    """A config field that redeclares the field `name` of the plain options class `options_cls` with
+    another default (an auto value, say): its range and doc are the options class's, `doc` added (and
+    `choices`, where given, the names it takes)."""
+    f = next(f for f in fields(options_cls) if f.name == name)
+    meta = {**f.metadata, "doc": "; ".join(d for d in (f.metadata.get("doc", ""), doc) if d),
+            **({"choices": tuple(choices)} if choices else {})}
+    return field(default=f.default if default is DC_MISSING else default, metadata=meta)
+
+
+def with_options(options_cls: type):
+    """A class decorator for a config schema (under @dataclass, so applied first): every field of the plain options class
+    `options_cls`, with its type, default, range and doc, declared once there, and then the schema's
+    own fields; a field the schema declares itself (with `like`, say) keeps the schema's declaration."""
+    def add(cls):
+        own = dict(cls.__dict__.get("__annotations__", {}))
+        hints = get_type_hints(options_cls)
+        merged = {}
+        for f in fields(options_cls):
+            if f.name in own:
+                merged[f.name] = own.pop(f.name)
+                continue
+            merged[f.name] = hints[f.name]
+            setattr(cls, f.name, field(default=f.default, metadata=f.metadata))
+        cls.__annotations__ = {**merged, **own}
+        return cls
+    return add
+
+
 def in_range(x: float, spec: str) -> bool:
     lo, hi, lo_open, hi_open = _parse_range(spec)
     if not math.isfinite(x):

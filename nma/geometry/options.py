@@ -1,10 +1,11 @@
-"""The discretisation's own options, plain values (no config machinery; nma.schema.Fidelity declares their
-ranges and presets)."""
+"""The discretisation's own options: plain values, each declared once with its range and meaning (the
+config's `fidelity` group, nma.schema.Fidelity, takes them from here and adds its presets)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
 from ..errors import ConfigError
+from ..settings import bounded
 
 
 GRADING_MAX = 4.0  # past it the outer thirds' largest span is over 4x the uniform one's
@@ -13,10 +14,15 @@ GRADING_MAX = 4.0  # past it the outer thirds' largest span is over 4x the unifo
 @dataclass(frozen=True)
 class Resolution:
     """How finely a scene is discretised (nma.geometry.discretise)."""
-    ctrl_per_patch: int = 5          # control points per patch side: 3k + 2, the design net refined
-    quad_points: int = 5             # Gauss points per knot span and direction
-    inversion_barrier: float = 0.0   # det F below which the barrier at the 4 x 4 check points acts; 0: off
-    grading: float = 1.0             # knot spacing towards the patch corners (bspline.span_breaks); 1: uniform
+    ctrl_per_patch: int = bounded(5, "[5, 1000]", doc="control points per patch side, 3k + 2: the 5 x 5 design "
+                                  "net refined by knot insertion")
+    quad_points: int = bounded(5, "[2, 10]", doc="Gauss points per knot span and direction; 1 under-integrates")
+    inversion_barrier: float = bounded(0.0, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
+                                       "every element, corners included, where the Gauss points do not see, and "
+                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off")
+    grading: float = bounded(1.0, f"[1, {GRADING_MAX:g}]", doc="knots graded towards every patch corner as "
+                             "(i/k)^grading in each side's outer thirds, where supports and actuated segments end "
+                             "(stress singularities; bspline.span_breaks); 1: uniform")
 
     def __post_init__(self):
         if self.ctrl_per_patch is None or self.quad_points is None:  # fidelity=scene's open halves

@@ -1,7 +1,10 @@
-"""The mechanical model's own options, plain values (no config machinery; nma.schema declares their ranges)."""
+"""The mechanical model's own options: plain values, each declared once with its range and meaning (the config
+schema, nma.schema, takes them from here)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from ..settings import bounded
 
 # how the strain energy treats volume change (nma.mechanics.energy): at every Gauss point, or through each
 # element's mean dilatation (locking-free as nu -> 0.5)
@@ -17,8 +20,12 @@ NEARLY_INCOMPRESSIBLE = 0.495
 
 @dataclass(frozen=True)
 class ContactSettings:
-    """The pores' self-contact (nma.mechanics.contact)."""
-    distance: float = 0.02   # d_hat, the gap at which the barrier starts, as a fraction of the median
-    # pore's extent (its bounding box's larger side) in the scene's canonical design (radii mid-range; a constant while training moves them)
-    stiffness: float = 1.0   # kappa / (mu d_hat): two walls at a gap d << d_hat press with about 4 stiffness mu d_hat / d
-    per_span: int = 3        # chords per Bezier segment of a pore wall
+    """The pores' self-contact (nma.mechanics.contact), each setting declared once here with its range and
+    meaning (the config's `contact` group, nma.schema.ContactConfig, takes them all)."""
+    # d_hat as a fraction of the median pore's extent (its bounding box's larger side) in the scene's
+    # canonical design (radii mid-range): a constant while training moves the radii
+    distance: float = bounded(0.02, "(0, 0.25]", doc="gap at which the barrier starts, as a fraction of the median "
+                              "pore's width")
+    # kappa / (mu d_hat): two walls at a gap d << d_hat press with about 4 stiffness mu d_hat / d
+    stiffness: float = bounded(1.0, "(0, 1000]", doc="barrier stiffness / (shear modulus x distance)")
+    per_span: int = bounded(3, "[1, 16]", doc="chords per knot span of a pore wall")

@@ -1,14 +1,14 @@
 """The mechanical model's settings: material, discretisation (fidelity), contact, solver."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import ClassVar, Optional
 
-from ..geometry.options import GRADING_MAX, Resolution
+from ..geometry.options import Resolution
 from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, NEARLY_INCOMPRESSIBLE, ContactSettings
 from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
-from ..settings import Schema, bounded, choice
+from ..settings import Schema, bounded, choice, like, with_options
 
 
 @dataclass
@@ -23,29 +23,24 @@ class MaterialConfig(Schema):
                               f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
 
 
-_RESOLUTION = Resolution()  # the discretisation's defaults; the config declares their ranges
+_RESOLUTION = Resolution()  # the discretisation's defaults
 
 
 @dataclass
 class Fidelity(Schema):
-    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points)."""
+    """The speed/accuracy knobs of a discretisation (the paper's: 5 control points, 5 Gauss points); each
+    of the discretisation's own declared once in nma/geometry/options.py (Resolution)."""
     prefix: ClassVar[str] = "fidelity"
     # None (fidelity=scene, the commands' default): the scene's own (its `fidelity` field), else the
     # paper's; resolve it first (nma.fidelity.resolve)
-    ctrl_per_patch: Optional[int] = bounded(_RESOLUTION.ctrl_per_patch, "[5, 1000]",
-                                            doc="3k + 2: the 5 x 5 design net refined by knot insertion")
-    quad_points: Optional[int] = bounded(_RESOLUTION.quad_points, "[2, 10]",
-                                         doc="Gauss points per knot span and direction; 1 under-integrates")
+    ctrl_per_patch: Optional[int] = like(Resolution, "ctrl_per_patch")
+    quad_points: Optional[int] = like(Resolution, "quad_points")
     tolerance: Optional[float] = bounded(None, "(0, inf)", doc="fidelity=auto: the largest relative gradient "
                                          "error allowed against the 14 x 5 reference; the scene's measured front "
                                          "then sets the two above")
-    inversion_barrier: Optional[float] = bounded(None, "[0, 1)", doc="det F below which a barrier acts at 4 x 4 points of "
-                                       "every element, corners included, where the Gauss points do not see, and "
-                                       "Newton keeps det F > 0 there (nma.mechanics.energy); 0: off; None (auto): "
-                                       "by the material (material_model)")
-    grading: float = bounded(_RESOLUTION.grading, f"[1, {GRADING_MAX:g}]", doc="knots graded towards every patch "
-                             "corner as (i/k)^grading in each side's outer thirds, where supports and actuated "
-                             "segments end (stress singularities); 1: uniform (docs/fidelity.md)")
+    inversion_barrier: Optional[float] = like(Resolution, "inversion_barrier", None,
+                                              doc="None (auto): by the material (material_model)")
+    grading: float = like(Resolution, "grading")
 
     @property
     def concrete(self) -> bool:
@@ -69,20 +64,14 @@ class Fidelity(Schema):
         return replace(self, **{k: v for k, v in own.items() if getattr(self, k) is None})
 
 
-_CONTACT = ContactSettings()  # the contact model's defaults
-
-
 @dataclass
+@with_options(ContactSettings)  # the contact model's settings, declared once in nma/mechanics/options.py
 class ContactConfig(Schema):
     """The pores' self-contact (nma.mechanics.contact): a barrier between each pore's walls, so that a
     closing pore's walls touch instead of passing through each other; nothing changes while they are
     further apart than `distance`."""
     prefix: ClassVar[str] = "contact"
     enabled: Optional[bool] = False  # None (contact=auto): as the scene says (SceneConfig.contact); resolved()
-    distance: float = bounded(_CONTACT.distance, "(0, 0.25]", doc="gap at which the barrier starts, as a fraction "
-                                                                  "of the median pore's width")
-    stiffness: float = bounded(_CONTACT.stiffness, "(0, 1000]", doc="barrier stiffness / (shear modulus x distance)")
-    per_span: int = bounded(_CONTACT.per_span, "[1, 16]", doc="chords per knot span of a pore wall")
 
     def resolved(self, scene) -> "ContactConfig":
         """These settings with contact=auto (enabled None) decided by the scene's own default (its
@@ -98,60 +87,16 @@ class ContactConfig(Schema):
         return ContactSettings(**{f.name: getattr(self, f.name) for f in fields(ContactSettings)})
 
 
-_NEWTON = NewtonOptions()  # the solver's defaults; the config declares their allowed ranges
-
-
 @dataclass
+@with_options(NewtonOptions)  # every Newton setting, declared once in nma/solver/options.py
 class SolverConfig(Schema):
     """Newton with adaptive load steps (nma.solver.newton) and the linear solver under it."""
     prefix: ClassVar[str] = "solver"
-    rtol: float = bounded(_NEWTON.rtol, "(0, 1]", doc="residual tolerance relative to the full-load force scale")
-    path_rtol: float = bounded(_NEWTON.path_rtol, "[0, 1]",
-                               doc="residual tolerance of the load steps before the last, relative as rtol "
-                                   "(0: rtol; the last always meets rtol): fewer iterations, but where "
-                                   "several equilibria are near, another may be reached (docs/validity.md)")
-    atol: float = bounded(_NEWTON.atol, "(0, 1]", doc="noise floor relative to (max element stiffness x size)")
-    max_iters: Optional[int] = bounded(None, "[1, 100000]", doc="None (auto): by the material (material_model)")
-    max_step_iters: Optional[int] = bounded(None, "[1, 100000]",
-                                            doc="corrector iterations before a load step fails (up to 5 more while its "
-                                                "residual is within 1000x the tolerance); None (auto): by the material")
-    initial_increment: float = bounded(_NEWTON.initial_increment, "(0, 1]",
-        doc="the first load step, a fraction of the full load")
-    min_increment: float = bounded(_NEWTON.min_increment, "(0, 1]", doc="a load step halved below this fails the solve")
-    grow: float = bounded(_NEWTON.grow, "[1, 100]", doc="the next load step's growth after a quick one")
-    step_fraction: float = bounded(_NEWTON.step_fraction, "(0, 1]",
-                                   doc="a step may go this fraction of the way to J = 0")
-    armijo: float = bounded(_NEWTON.armijo, "(0, 0.5]", doc="the line search's sufficient decrease")
-    max_backtracks: int = bounded(_NEWTON.max_backtracks, "[1, 1000]",
-        doc="halvings of a step before the line search gives up")
-    damped_step: float = bounded(_NEWTON.damped_step, "(0, 1]",
-                                 doc="a corrector step shorter than this fraction of the Newton step is heavily damped")
-    max_damped_steps: int = bounded(_NEWTON.max_damped_steps, "[1, 100000]",
-                                    doc="heavily damped corrector steps in a row that cut the load step at once "
-                                        "(Newton's model does not hold there)")
-    corrector: str = choice("auto", ("auto", *CORRECTORS.names()),
-                            doc="a corrector step at fixed load: the Newton step shortened by a line search, or "
-                                "a trust region on the energy's quadratic model (its diagonal shift adapted), "
-                                "which damps a soft mode's part of the step only (docs/stability.md); auto: by "
-                                "the material (material_model)")
-    contact_exact_below: float = bounded(_NEWTON.contact_exact_below, "[0, 1]",
-                                         doc="with contact, Newton's correctors use contact's normal stiffness "
-                                             "only (positive semi-definite) until the residual falls below this "
-                                             "fraction of the full load's force scale, then the exact tangent "
-                                             "(0: exact throughout; docs/validity.md)")
-    escape_saddles: bool = field(default=_NEWTON.escape_saddles, metadata={
-        "doc": "a converged saddle (PARDISO's inertia) is left along its unstable mode for a stable equilibrium"})
-    element_bound: bool = field(default=_NEWTON.element_bound, metadata={
-        "doc": "Newton's step keeps det F > 0 at each element's 4 x 4 check points (corners included), not "
-               "only at its Gauss points: a state that inverts between them fails instead of converging "
-               "(docs/validity.md)"})
-    warm_start: bool = field(default=_NEWTON.warm_start, metadata={
-        "doc": "start a solve from the kept equilibrium nearest in actuation (host backends; docs/speed.md)"})
-    warm_pool: int = bounded(_NEWTON.warm_pool, "[1, 100000]", doc="equilibria kept as warm starts")
-    warm_iters: int = bounded(_NEWTON.warm_iters, "[1, 100000]",
-                              doc="iterations a warm solve may take before it is redone cold")
-    warm_audit: int = bounded(_NEWTON.warm_audit, "[0, 100000]",
-                              doc="every this many warm solves one is also solved cold and compared; 0: none")
+    max_iters: Optional[int] = like(NewtonOptions, "max_iters", None, doc="None (auto): by the material "
+                                    "(material_model)")
+    max_step_iters: Optional[int] = like(NewtonOptions, "max_step_iters", None, doc="None (auto): by the material")
+    corrector: str = like(NewtonOptions, "corrector", "auto", doc="auto: by the material (material_model)",
+                          choices=("auto", *CORRECTORS.names()))
     linear: str = "auto"   # a linear backend registered in nma.solver.linear (auto, pardiso, superlu, dense)
     workers: int = bounded(0, "[0, 1024]", doc="threads solving a batch's samples at once; 0 = one per core")
 
@@ -183,7 +128,8 @@ class MaterialModel:
 
 # A compressible material: the displacement model and Newton's defaults.  A nearly incompressible one
 # (nu >= NEARLY_INCOMPRESSIBLE): the locking-free model with the settings under which every cell of the
-# stability map at nu 0.499 converges (make study-incompressible; docs/stability.md).
+# stability map at nu 0.499 converges (make study-incompressible; docs/how-to/nearly-incompressible.md).
+_NEWTON = NewtonOptions()  # Newton's defaults: what auto chooses for a compressible material
 COMPRESSIBLE = MaterialModel("displacement", {"corrector": _NEWTON.corrector, "max_iters": _NEWTON.max_iters,
                                               "max_step_iters": _NEWTON.max_step_iters}, 0.0, None)
 NEARLY_INCOMPRESSIBLE_MODEL = MaterialModel("mixed", {"corrector": "trust_region", "max_iters": 1000,

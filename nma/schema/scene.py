@@ -132,7 +132,7 @@ class SceneConfig(Schema):
     cell_size: float = bounded(5.0, "(0, inf)", doc="a cell's side, in the scene's length units")
     x_breaks: Optional[List[float]] = None     # cell boundaries, overriding cell_size
     y_breaks: Optional[List[float]] = None     # as x_breaks, for the rows
-    groups: List[GroupConfig] = field(default_factory=list)  # actuated boundary segments (docs/scenes.md)
+    groups: List[GroupConfig] = field(default_factory=list)  # actuated boundary segments (docs/reference/scenes.md)
     pinned: List[Any] = field(default_factory=list)          # [[x, y], ...]
     supports: List[SupportConfig] = field(default_factory=list)  # segments that hold the body
     tracked: Dict[str, Any] = field(default_factory=dict)    # name -> [x, y] (a material point)
