@@ -38,10 +38,10 @@ def linearisation(scene: str):
     sim = Simulator.from_config(config.load("scene", name), {"ctrl_per_patch": ctrl, "quad_points": quad})
     X = sim.reference_points(sim.init_params())
     u = (X - jnp.mean(X, axis=0)) @ jnp.array([[0.02, 0.01], [0.0, -0.01]])  # a homogeneous strain: J > 0
-    quad = jax.jit(lambda X: quadrature(sim.disc, X))(X)  # the design's part: once per solve, not timed
-    fn = jax.jit(lambda quad, u, mat: energy_force_tangents(sim.disc, quad, u, mat))
-    elements = int(np.prod(sim.disc.elem_points.shape[:2]))
-    return fn, (quad, u, material(0.07, 0.3)), sim.disc.n_dofs, elements
+    quad = jax.jit(lambda X: quadrature(sim.disc.solid, X))(X)  # the design's part: once per solve, not timed
+    fn = jax.jit(lambda quad, u, mat: energy_force_tangents(sim.disc.solid, quad, u, mat))
+    elements = int(np.prod(sim.disc.mesh.elem_points.shape[:2]))
+    return fn, (quad, u, material(0.07, 0.3)), sim.disc.boundary.n_dofs, elements
 
 
 def measure(scene: str, repeats: int) -> dict:

@@ -45,7 +45,7 @@ def objective(sim):
     import jax
     import jax.numpy as jnp
 
-    w = jax.random.normal(jax.random.PRNGKey(0), (sim.disc.n_points, 2)) / sim.disc.n_points
+    w = jax.random.normal(jax.random.PRNGKey(0), (sim.disc.mesh.n_points, 2)) / sim.disc.mesh.n_points
 
     def loss(params, d, mat):
         X = sim.reference_points(params)
@@ -89,7 +89,7 @@ def bench_scene(scene, repeats, linear="pardiso"):
             raise eq.error(f"{scene} d={np.asarray(d).round(3).tolist()}: ")
         iters.append(int(info.iterations))
         steps.append(int(info.load_steps))
-    out = {"scene": scene, "linear": linear, "dofs": sim.disc.n_dofs, "build_seconds": build_s,
+    out = {"scene": scene, "linear": linear, "dofs": sim.disc.boundary.n_dofs, "build_seconds": build_s,
            "first_call_seconds": first, "forward_seconds": stats(t_fwd), "forward_grad_seconds": stats(t_grad),
            "newton_iterations": stats(iters), "load_steps": stats(steps)}
     if scene == "translation":  # the largest actuation of the task, |d| = d_max = 4

@@ -68,7 +68,7 @@ def child(scene: str, steps: int, init_from: str | None, compare: bool) -> dict:
     built = time.perf_counter() - t0
     first, _ = timed_step(trainer)
     out = {"build_seconds": built, "first_step_seconds": first, "to_first_step_seconds": built + first,
-           "batch_size": trainer.cfg.batch_size, "dofs": trainer.sim.disc.n_dofs,
+           "batch_size": trainer.cfg.batch_size, "dofs": trainer.sim.disc.boundary.n_dofs,
            "workers": trainer.sim.workers}
     if compare:
         single = trainer_for(scene, 1, init_from)

@@ -59,11 +59,11 @@ def solve_ladder(scene: str, ladder: list[int], grading: float, unpinned: bool) 
         u, info = sim.equilibrium(X, jnp.asarray(d), material(0.07, 0.3))
         if int(info.status) != Status.CONVERGED:  # how far it got and why
             raise SystemExit(str(failure(info, f"{scene} at {m} x 5, grading {grading:g}: ")))
-        out["levels"][m] = {"reference": np.asarray(sample_positions(sim.disc, X, SAMPLES)),
-                            "deformed": np.asarray(sample_positions(sim.disc, X + u, SAMPLES)),
-                            "dofs": sim.disc.n_dofs, "iterations": int(info.iterations),
+        out["levels"][m] = {"reference": np.asarray(sample_positions(sim.disc.mesh, X, SAMPLES)),
+                            "deformed": np.asarray(sample_positions(sim.disc.mesh, X + u, SAMPLES)),
+                            "dofs": sim.disc.boundary.n_dofs, "iterations": int(info.iterations),
                             "seconds": time.perf_counter() - t0}
-        print(f"  {m} x 5: {sim.disc.n_dofs} DOFs, {int(info.iterations)} iterations", flush=True)
+        print(f"  {m} x 5: {sim.disc.boundary.n_dofs} DOFs, {int(info.iterations)} iterations", flush=True)
     return out
 
 

@@ -174,7 +174,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
         jax.block_until_ready(forward(geom, ds[0], ts[0]))  # compile both before timing
         jax.block_until_ready(forward_grad(geom, ds[0], ts[0]))
         t_fwd, t_grad, outs, grads, iters, failed, nonphysical = [], [], [], [], [], [], []
-        checker = StateChecker(sim.disc, sim.reference_points(geom))
+        checker = StateChecker(sim.disc.mesh, sim.reference_points(geom))
         for i in range(draws):
             t0 = time.perf_counter()
             jax.block_until_ready(forward(geom, ds[i], ts[i]))
@@ -191,7 +191,7 @@ def measure(scene: str, setting, draws: int, seed: int = 0, grading: float = 1.0
             iters.append(int(info.iterations))
             outs.append(np.asarray(out).ravel())
             grads.append({**{k: np.asarray(g_geom[k]).ravel() for k in learned}, "actuations": np.asarray(g_d)})
-    return {"ctrl_per_patch": ctrl, "quad_points": quad, "rtol": rtol, "dofs": sim.disc.n_dofs,
+    return {"ctrl_per_patch": ctrl, "quad_points": quad, "rtol": rtol, "dofs": sim.disc.boundary.n_dofs,
             "forward_seconds": stats(t_fwd), "forward_grad_seconds": stats(t_grad),
             "newton_iterations": stats(iters), "peak_memory_mb": memory.peak / 2**20,
             "added_memory_mb": (memory.peak - memory.before) / 2**20, "failed_draws": failed,

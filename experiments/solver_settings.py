@@ -61,7 +61,7 @@ def run_scene(scene: str, nus: list[float], formulation: str, setting: str = "co
     records = []
     for (name, design), nu, s in itertools.product(designs.items(), nus, directions):
         X, d, mat = sim.reference_points(design), jnp.asarray(d_max * s), material(stability_map.E, nu)
-        checker = StateChecker(sim.disc, np.asarray(X))
+        checker = StateChecker(sim.disc.mesh, np.asarray(X))
         record, states = {"scene": scene, "design": name, "nu": nu, "d": (d_max * s).tolist()}, {}
         for c, solve in solves.items():
             t0 = time.perf_counter()

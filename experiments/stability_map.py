@@ -133,7 +133,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
         # a converged state may not be a physical object (material inverted between Gauss points, a
         # wall through a wall): nma/geometry/validity.py
         # a stopped solve returns the last equilibrium it reached: its walls' compression is reported too
-        checked = StateChecker(sim.disc, np.asarray(X)).check(np.asarray(u)) if finite else None
+        checked = StateChecker(sim.disc.mesh, np.asarray(X)).check(np.asarray(u)) if finite else None
         state = checked if status == Status.CONVERGED else None
         records.append({"design": gname, "nu": nu, "signs": s.tolist(), "d": (d_max * s).tolist(),
                         "converged": status == Status.CONVERGED, "status": Status.describe(status),
@@ -155,7 +155,7 @@ def run_scene(scene: str, quick: bool, escape_saddles: bool = False, seed: int =
               f"{'' if not unstable else f'(saddle: {unstable} negative eigenvalues) '}"
               f"{'' if state is None or state.valid else '(NOT PHYSICAL: ' + '; '.join(state.problems()) + ') '}"
               f"{r['iterations']} it, {r['load_steps']} steps, {seconds:.2f} s", flush=True)
-    return {"scene": scene, "dofs": sim.disc.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
+    return {"scene": scene, "dofs": sim.disc.boundary.n_dofs, "d_max": d_max, "E": E, "n_actuations": sim.n_actuations,
             "fidelity": "paper" if mesh is None else f"{mesh[0]} x {mesh[1]}",
             "solver": "pardiso" + (", escape_saddles" if escape_saddles else "")
             + (f", {corrector}" if corrector != "line_search" else "") + ("" if element_bound else ", no element bound"),

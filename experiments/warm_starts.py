@@ -10,7 +10,7 @@ solve also solved cold (solver.warm_audit=1), warm starts never stopped: the col
 wherever the two differ, so the steps are those of a cold run to the solver's tolerance.  Recorded per
 run: how many warm solves land on the cold solve's equilibrium (displacements within 1e-6 and 1e-8 of
 the cold ones, max norm relative to the largest), the energies of the two equilibria where they differ,
-and the Newton iterations per solve, warm and cold.  docs/speed.md#warm-starts has the results.
+and the Newton iterations per solve, warm and cold.  It writes its results under outputs/.
 """
 from __future__ import annotations
 

@@ -67,7 +67,7 @@ def trained_outline(run_dir) -> Outline:
 
     settings, params, _ = load_run(run_dir)
     disc = discretise(scene_from_config(settings.scene), Fidelity(5, 2))  # the design nets themselves
-    return Outline.of(disc, disc.reference_points(_geometry(disc, params, run_dir)))
+    return Outline.of(disc.mesh, disc.reference_points(_geometry(disc, params, run_dir)))
 
 
 def _geometry(disc, params, run_dir) -> dict:
@@ -216,9 +216,9 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
     sim = Simulator.from_settings(settings)
     geom = _geometry(sim.disc, params, run_dir)
     X = np.asarray(sim.reference_points(geom))
-    checker = StateChecker(sim.disc, X)
+    checker = StateChecker(sim.disc.mesh, X)
     mat = material(settings.material.E, settings.material.nu)
-    rest = [scale * p for p in Outline.deformed(checker.loops, X, sim.disc.fidelity.grading).polylines(8)]
+    rest = [scale * p for p in Outline.deformed(checker.loops, X, sim.disc.mesh.fidelity.grading).polylines(8)]
     pointer0 = np.asarray(sim.tracked(X, np.zeros_like(X))["pointer"])
     fig, axes = plt.subplots(1, len(LOAD_CASES), figsize=(4.2 * len(LOAD_CASES), 4.6), sharex=True, sharey=True)
     cases = {}
@@ -235,7 +235,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
         moved = np.asarray(sim.tracked(X, eq.u)["pointer"]) - pointer0
         cases[name] = {"actuation": d.tolist(), "converged": True, "pointer_displacement_mm": (scale * moved).tolist(),
                        "valid": state.valid, "problems": state.problems()}
-        for line in Outline.deformed(checker.loops, X + np.asarray(eq.u), sim.disc.fidelity.grading).polylines(8):
+        for line in Outline.deformed(checker.loops, X + np.asarray(eq.u), sim.disc.mesh.fidelity.grading).polylines(8):
             ax.plot(*np.vstack([scale * line, scale * line[:1]]).T, color="#c0392b" if not state.valid else "#1f3fbf",
                     lw=1.0)
         ax.annotate("", scale * (pointer0 + moved), scale * pointer0,

@@ -99,7 +99,7 @@ def front_path(scene: str | SceneSpec, data: Path = DATA) -> Path:
     def differs(p: Path) -> str:
         other = _front(p).get("holds")
         if other is None:
-            return f"{p.name} records no holds (measured before fronts did: measure it again)"
+            return f"{p.name} records no holds (the scene's pins, supports and actuated segments): measure it again"
         return p.name + ": " + ", ".join(f"{HOLDS[k]}={json.dumps(_field(other, k))}" for k in HOLDS
                                          if _field(other, k) != _field(held, k))
 

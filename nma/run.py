@@ -21,8 +21,8 @@ from .config import CONF_DIR
 from .schema import TrainConfig, register
 from .schema.physics import describe_model, model_record
 from .sweep import FAILED_JOB
-from .train.runs import (check_init_from, check_run_dir, chosen_fidelity, fidelity_record, fingerprint, make_trainer,
-                         validate)
+from .train.runs import (absent_means, check_init_from, check_run_dir, chosen_fidelity, fidelity_record, fingerprint,
+                         make_trainer, validate)
 
 log = logging.getLogger("nma.run")
 register()
@@ -37,7 +37,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     trainer = make_trainer(s, run_dir, config, world)
     sim, task, logger = trainer.sim, trainer.task, trainer.logger
     X_before = sim.reference_points(trainer.state["params"]["geom"])
-    log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.n_dofs, world.size,
+    log.info("%s: %d dofs, %d ranks, batch %d, geometry %s", task.name, sim.disc.boundary.n_dofs, world.size,
              s.trainer.batch_size, "frozen" if s.trainer.freeze_geometry else "learned")
     if model_record(s)["nearly_incompressible"]:
         log.info("material.nu = %g is nearly incompressible: %s", s.material.nu, describe_model(s))
@@ -158,7 +158,7 @@ def main() -> None:
         check_run_dir(run_dir, settings.trainer.resume, "a sweep job's directory" if multirun else "hydra.run.dir")
         if settings.trainer.resume == "true":  # does the checkpoint fit?
             if found:
-                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings),
+                checkpoint.check_fingerprint(found[0], found[1], fingerprint(settings), absent_means(settings),
                                              dataclasses.asdict(type(settings.optim)()))
 
     hydra_cfg = cli.preflight("config", check, sys.argv[1:], world.rank)

@@ -63,7 +63,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     sim = Simulator.from_settings(s)
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
-    result = {"scene": spec.name, "dofs": sim.disc.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
+    result = {"scene": spec.name, "dofs": sim.disc.boundary.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
               "material": {"E": s.material.E, "nu": s.material.nu, "formulation": s.material.formulation},
               "model": model_record(s)}
     params = sim.init_params()
@@ -78,7 +78,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     X = np.asarray(sim.reference_points(params))
     energy = sim.energy(X, eq.u, mat)
     tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(X, eq.u).items()}
-    checker = StateChecker(sim.disc, X)
+    checker = StateChecker(sim.disc.mesh, X)
     state = checker.check(eq.u)
     if not state.valid:
         log.warning("the equilibrium is not a physical object: %s", "; ".join(state.problems()))

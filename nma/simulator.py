@@ -95,7 +95,7 @@ class Simulator:
         self._equilibrium, self.warm_starts = make_equilibrium(self.equations, self.backend, options, self.workers)
         self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
         self._solve = jax.jit(lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat))
-        self._energy = jax.jit(lambda X, u, mat: strain_energy(disc, quadrature(disc, X), u, mat))
+        self._energy = jax.jit(lambda X, u, mat: strain_energy(disc.solid, quadrature(disc.solid, X), u, mat))
 
     @classmethod
     def from_settings(cls, s, workers: int | None = None) -> "Simulator":
@@ -160,7 +160,7 @@ class Simulator:
     @property
     def n_actuations(self) -> int:
         """The number of actuations a solve takes: one per actuation index of the scene's groups."""
-        return self.disc.n_actuations
+        return self.disc.boundary.n_actuations
 
     def init_params(self):
         """The initial design: a dict of arrays holding what the scene models (`radii` (n_porous_cells, 16),
@@ -246,7 +246,7 @@ class Simulator:
             TypeError: An argument that is not an array of real numbers.
         """
         return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
-            ("X", X, (self.disc.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
+            ("X", X, (self.disc.mesh.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
 
     @staticmethod
     def _checked(name: str, value, shape: tuple):

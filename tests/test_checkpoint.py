@@ -55,7 +55,7 @@ def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(tmp_pa
                                            ("model.hidden=[8]", "model.hidden: None -> [8]"),
                                            ("task.box_half_width=1.0", "task.box_half_width: 1.5 -> 1.0"),
                                            ("trainer.inversion_penalty=0.2", "trainer.inversion_penalty: 0.1 -> 0.2"),
-                                           ("trainer.inversion_penalty=0", "trainer.inversion_penalty: 0.1 -> '(unset)'"),
+                                           ("trainer.inversion_penalty=0", "trainer.inversion_penalty: 0.1 -> 0.0"),
                                            # a run from before contact=auto, resumed where the scene now says on
                                            ("contact=on", "(it trained without contact: add contact=off)")])
 def test_resume_with_another_config_stops_naming_the_fields(tmp_path, translation_run, monkeypatch, capsys,
@@ -97,11 +97,14 @@ def test_a_run_trained_before_the_element_bound_is_told_to_add_it_off():
 
     from nma.train.checkpoint import check_fingerprint
 
+    from nma.train.runs import ABSENT_MEANS
+
     before, today = {"trainer": {"seed": 0}}, {"trainer": {"seed": 0}, "solver": {"element_bound": True}}
-    with pytest.raises(ConfigError, match=r"solver.element_bound: '\(unset\)' -> True\) \(it trained without "
+    with pytest.raises(ConfigError, match=r"solver.element_bound: False -> True\) \(it trained without "
                                           r"Newton's element bound: add solver.element_bound=false\)"):
-        check_fingerprint("c", {"config": json.dumps(before)}, today)
-    check_fingerprint("c", {"config": json.dumps(before)}, before)  # with it off: the same fingerprint
+        check_fingerprint("c", {"config": json.dumps(before)}, today, ABSENT_MEANS)
+    off = {"trainer": {"seed": 0}, "solver": {"element_bound": False}}
+    check_fingerprint("c", {"config": json.dumps(before)}, off, ABSENT_MEANS)  # with it off: as it trained
 
 
 def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
@@ -113,16 +116,17 @@ def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
 
     from conftest import compose_cfg
     from nma.train.checkpoint import check_fingerprint
-    from nma.train.runs import fingerprint, validate
+    from nma.train.runs import absent_means, fingerprint, validate
 
-    today = json.loads(json.dumps(fingerprint(validate(compose_cfg("task=translation", "logger=none")))))
+    settings = validate(compose_cfg("task=translation", "logger=none"))
+    today, absent = json.loads(json.dumps(fingerprint(settings))), absent_means(settings)
     assert today["trainer"]["inversion_penalty"] == 0.1 and today["fidelity"]["quad_points"] == 2
     before = copy.deepcopy(today)
-    del before["trainer"]["inversion_penalty"], before["trainer"]["inversion_margin"]
+    del before["trainer"]["inversion_penalty"]
     before["fidelity"]["quad_points"] = 5
     with pytest.raises(ConfigError) as both:
-        check_fingerprint("c", {"config": json.dumps(before)}, today)
-    assert "trainer.inversion_penalty: '(unset)' -> 0.1" in str(both.value)
+        check_fingerprint("c", {"config": json.dumps(before)}, today, absent)
+    assert "trainer.inversion_penalty: 0.0 -> 0.1" in str(both.value)
     assert ("(it trained at the paper's 5 x 5: add fidelity=paper; it trained without the inversion penalty: add "
             "trainer.inversion_penalty=0)") in str(both.value)
     other_penalty = copy.deepcopy(before)
@@ -130,12 +134,36 @@ def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
     for old, new in [(other_penalty, today),  # a penalty of its own: the 5 x 5 hint alone would not resume it
                      (before, {**today, "trainer": {**today["trainer"], "seed": 1}})]:  # another change beside
         with pytest.raises(ConfigError) as no_hint:
-            check_fingerprint("c", {"config": json.dumps(old)}, new)
+            check_fingerprint("c", {"config": json.dumps(old)}, new, absent)
         assert "add fidelity=paper" not in str(no_hint.value) and "add trainer.inversion_penalty" not in str(no_hint.value)
     generic = {**today, "optim": {**today["optim"], "lr": 1e-3}}  # before translation had an optimiser of its own
     with pytest.raises(ConfigError, match=r"optim.lr: 0.001 -> 0.01\) \(it trained with the generic optimiser: add "
                                           r"optim=adam\)"):
-        check_fingerprint("c", {"config": json.dumps(generic)}, today, {**today["optim"], "lr": 1e-3})
+        check_fingerprint("c", {"config": json.dumps(generic)}, today, absent, {**today["optim"], "lr": 1e-3})
+
+
+def test_a_record_lacking_a_setting_means_its_default_and_a_full_record_still_compares():
+    """A checkpoint's record holds each setting where it differs from what its absence means (its default,
+    or ABSENT_MEANS's value for the few whose default changed): a run recorded before a new setting
+    existed resumes with no rule for it, and a record that spells out every value (as checkpoints did
+    before records left defaults out) compares equal to today's."""
+    import json
+
+    from conftest import compose_cfg
+    from nma.train.checkpoint import check_fingerprint, flatten
+    from nma.train.runs import _shaping, absent_means, fingerprint, validate
+
+    settings = validate(compose_cfg("task=rotation_double", "logger=none"))
+    today, absent = fingerprint(settings), absent_means(settings)
+    assert "max_failed_steps" not in json.dumps(today)  # not a setting that shapes the run
+    full = dict(flatten(json.loads(json.dumps(_shaping(settings)))))
+    assert set(dict(flatten(today))) < set(full)  # defaults left out
+    check_fingerprint("c", {"config": json.dumps(full)}, today, absent)
+    older = {k: v for k, v in full.items() if k != "optim.final_fraction"}  # from before the setting existed
+    check_fingerprint("c", {"config": json.dumps(older)}, today, absent)
+    changed = validate(compose_cfg("task=rotation_double", "logger=none", "optim.final_fraction=0.2"))
+    with pytest.raises(ConfigError, match=r"optim.final_fraction: 0.1 -> 0.2\)"):
+        check_fingerprint("c", {"config": json.dumps(older)}, fingerprint(changed), absent)
 
 
 @pytest.mark.parametrize("damage", [b"", b"garbage", "truncated"])

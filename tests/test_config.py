@@ -418,14 +418,21 @@ def test_commands_are_console_scripts():
 
 
 def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
-    """Runs from before material.formulation existed resume: the default is left out of the fingerprint
-    (as contact is when off), another formulation is in it, so its checkpoints are never mixed up."""
-    from nma.train.runs import fingerprint
+    """Runs from before material.formulation existed resume: a record without it means displacement
+    (ABSENT_MEANS); the formulation is always recorded, so a mixed run's checkpoints are never mixed up."""
+    import json
 
-    default = fingerprint(validate(compose_cfg("task=translation", "logger=none")))
+    from nma.train.checkpoint import check_fingerprint
+    from nma.train.runs import absent_means, fingerprint
+
+    settings = validate(compose_cfg("task=translation", "logger=none"))
+    default = fingerprint(settings)
     mixed = fingerprint(validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed")))
-    assert default["material"] == {"E": 0.07, "nu": 0.3}
-    assert mixed["material"]["formulation"] == "mixed" and "contact" not in default
+    assert default["material"] == {"formulation": "displacement"} and mixed["material"]["formulation"] == "mixed"
+    before = {**default, "material": {"E": 0.07, "nu": 0.3}}  # a record from before the setting existed
+    check_fingerprint("c", {"config": json.dumps(before)}, default, absent_means(settings))
+    with pytest.raises(ConfigError, match="material.formulation: 'displacement' -> 'mixed'"):
+        check_fingerprint("c", {"config": json.dumps(before)}, mixed, absent_means(settings))
 
 
 def test_checkpoints_with_uniform_knots_keep_their_fingerprint():
@@ -452,7 +459,7 @@ def test_contact_auto_follows_the_scene_and_a_stated_choice_wins(overrides, cont
 
     settings = validate(compose_cfg(*overrides, "logger=none"))
     assert settings.contact.enabled is contact
-    assert ("contact" in fingerprint(settings)) is contact and "contact" not in fingerprint(settings)["scene"]
+    assert fingerprint(settings)["contact"]["enabled"] is contact and "contact" not in fingerprint(settings)["scene"]
 
 
 def test_a_run_from_before_contact_auto_resolves_as_it_trained(tmp_path):
@@ -475,7 +482,7 @@ def test_a_run_from_before_contact_auto_resolves_as_it_trained(tmp_path):
     assert saved(tmp_path / "before", before).contact.enabled is False
     del before["contact"]  # and from before contact existed at all
     older = saved(tmp_path / "older", before)
-    assert older.contact.enabled is False and "contact" not in fingerprint(older)
+    assert older.contact.enabled is False and fingerprint(older)["contact"] == {"enabled": False}
     assert "contact" not in fingerprint(older)["scene"]
     now = compose_cfg("task=rotation_double", "logger=none")
     assert now.contact.enabled is None and saved(tmp_path / "now", now).contact.enabled is True
@@ -572,7 +579,7 @@ def test_auto_models_a_nearly_incompressible_material_locking_free_and_a_compres
     defaults): at nu 0.3 they resolve to exactly the settings stated before auto existed (equal
     settings: the same discretisation and Newton options, so the same answers bit for bit); from nu
     0.495 on, to the locking-free model with the settings under which every cell of the stability map
-    at nu 0.499 converges (docs/stability.md); a stated choice wins."""
+    at nu 0.499 converges (docs/how-to/nearly-incompressible.md); a stated choice wins."""
     from nma.schema.physics import model_record
     from nma.train.runs import validate
 

@@ -41,7 +41,7 @@ def cell():
             for on in (False, True)}
     params = sims[True].init_params()
     X = sims[True].reference_points(params)
-    return sims, params, X, StateChecker(sims[True].disc, X)
+    return sims, params, X, StateChecker(sims[True].disc.mesh, X)
 
 
 def test_the_model_is_the_pores_walls(cell):
@@ -52,7 +52,7 @@ def test_the_model_is_the_pores_walls(cell):
     # d_hat: 2% of the pore's width in the scene's canonical design (radii mid-range: 0.5 of the 5-unit
     # cell), a constant of the discretisation while training moves the radii
     assert model.d_hat == pytest.approx(0.02 * 0.5 * 5.0)
-    assert sims[True].disc.block_points.shape == (sims[False].disc.block_points.shape[0] + model.n_blocks, 9)
+    assert sims[True].disc.solid.block_points.shape == (sims[False].disc.solid.block_points.shape[0] + model.n_blocks, 9)
 
 
 @pytest.mark.slow  # the contact force and tangent tests check in part that open pores add nothing
@@ -135,7 +135,7 @@ def test_a_warm_start_whose_walls_cross_under_the_new_design_is_redone_from_rest
     stats = warm.warm_starts.stats
     for shift, crosses in ((1.0, True), (0.2, False)):
         moved = X + shift * (u_without - u_with)  # the top wall lowered towards the bottom one
-        checker = StateChecker(warm.disc, moved)
+        checker = StateChecker(warm.disc.mesh, moved)
         assert checker.check(u_with).valid != crosses  # the start, under the moved design
         before = dict(stats)
         eq = warm.equilibrium_batch(moved, d, MAT)
@@ -156,7 +156,7 @@ def touching(cell):
 def test_force_and_tangent_against_central_differences(cell, touching):
     sim, _, X, u = touching
     disc = sim.disc
-    quad = quadrature(disc, X)
+    quad = quadrature(disc.solid, X)
     model, walls, mu = disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
     energy = lambda x: contact.energy(model, walls, x, mu)  # noqa: E731
     e, force, blocks, which, near = contact.force_and_blocks(model, walls, X + u, mu)
@@ -166,7 +166,7 @@ def test_force_and_tangent_against_central_differences(cell, touching):
     assert 0 < near < model.n_blocks and np.all(np.diff(which[:near]) > 0) and np.all(which[near:] == -1)
     assert not np.asarray(blocks)[near:].any()
     rng = np.random.default_rng(1)
-    pts = disc.block_points[len(disc.elem_points.reshape(-1, 9)):][which[:near]]
+    pts = disc.solid.block_points[len(disc.mesh.elem_points.reshape(-1, 9)):][which[:near]]
     dofs = (2 * pts[:, :, None] + np.arange(2)).reshape(len(pts), 18)
     for _ in range(3):
         v = jnp.asarray(rng.standard_normal(X.shape))
@@ -174,17 +174,17 @@ def test_force_and_tangent_against_central_differences(cell, touching):
         fd = (energy(X + u + h * v) - energy(X + u - h * v)) / (2 * h)
         assert float(jnp.sum(force * v)) == pytest.approx(float(fd), rel=1e-6)
         # K v from the blocks against the force's central difference
-        Kv = np.zeros(2 * disc.n_points)
+        Kv = np.zeros(2 * disc.mesh.n_points)
         np.add.at(Kv, dofs, np.einsum("eab,eb->ea", np.asarray(blocks)[:near], np.asarray(v).reshape(-1)[dofs]))
         f = lambda x: contact.force_and_blocks(model, walls, x, mu)[1]  # noqa: E731
         fd_K = (f(X + u + h * v) - f(X + u - h * v)).reshape(-1) / (2 * h)
         np.testing.assert_allclose(Kv, fd_K, rtol=1e-5, atol=1e-7 * np.abs(fd_K).max())
     # the tangents: the elastic blocks (bit for bit those of the same scene without contact), then these
-    _, _, kel = energy_force_tangents(disc, quad, u, MAT)
+    _, _, kel = energy_force_tangents(disc.solid, quad, u, MAT)
     np.testing.assert_array_equal(kel.contact, blocks)
     np.testing.assert_array_equal(kel.which, which)
     plain = cell[0][False].disc
-    np.testing.assert_array_equal(kel.elements, energy_force_tangents(plain, quadrature(plain, X), u, MAT)[2].elements)
+    np.testing.assert_array_equal(kel.elements, energy_force_tangents(plain.solid, quadrature(plain.solid, X), u, MAT)[2].elements)
     # the sparse assembly (the near blocks) and the dense one: the same matrix
     K = sparse_pattern(disc, upper=False).matrix(kel).toarray()
     dense = np.asarray(DenseBackend(disc)._matrix(kel, 0.0))
@@ -202,14 +202,14 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
 
     sim, params, X, u = touching
     disc, model = sim.disc, sim.disc.contact
-    quad = quadrature(disc, X)
-    _, _, full = energy_force_tangents(disc, quad, u, MAT)
+    quad = quadrature(disc.solid, X)
+    _, _, full = energy_force_tangents(disc.solid, quad, u, MAT)
     near = int(full.near)
-    _, _, few = energy_force_tangents(disc, quad, u, MAT, capacity=near - 1)
+    _, _, few = energy_force_tangents(disc.solid, quad, u, MAT, capacity=near - 1)
     assert not bool(few.complete) and few.which.shape == (near - 1,)
     with pytest.raises(RuntimeError, match=f"room for {near - 1} contact blocks, but {near} are near"):
         sparse_pattern(disc, upper=False).matrix(few)
-    _, _, room = energy_force_tangents(disc, quad, u, MAT, capacity=near)
+    _, _, room = energy_force_tangents(disc.solid, quad, u, MAT, capacity=near)
     assert bool(room.complete)
     np.testing.assert_array_equal(room.contact, np.asarray(full.contact)[:near])
     np.testing.assert_array_equal(room.which, np.asarray(full.which)[:near])
@@ -247,7 +247,7 @@ def test_far_from_equilibrium_newton_takes_the_normal_stiffness_and_ends_where_t
     while its residual is large (solver.contact_exact_below) and ends on the same touching state as with
     the exact tangent throughout."""
     sim, params, X, u = touching
-    quad = quadrature(sim.disc, X)
+    quad = quadrature(sim.disc.solid, X)
     model, walls, mu = sim.disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
     e, force, exact, which, _ = contact.force_and_blocks(model, walls, X + u, mu)
     e_n, force_n, normal, which_n, _ = contact.force_and_blocks(model, walls, X + u, mu, normal=jnp.asarray(True))
@@ -322,7 +322,7 @@ def test_short_segments_of_one_wall_do_not_touch_at_rest():
     model = disc.contact
     params = {**disc.init_params(), "radii": jnp.full_like(disc.init_params()["radii"], 0.1)}
     X = disc.reference_points(params)
-    quad = quadrature(disc, X)
+    quad = quadrature(disc.solid, X)
     assert model.pores == 24 and float(jnp.max(quad.walls.weights)) < model.d_hat  # vertices closer than d_hat
     assert contact.smallest_gap(model, X, X) > model.d_hat
     e, force, *_ = contact.force_and_blocks(model, quad.walls, X, 0.02)

@@ -24,9 +24,9 @@ from nma.train import checkpoint
 def quadrature_area(spec, geom) -> float:
     """The design's area as the solver integrates it: det J at 5 x 5 Gauss points per element."""
     disc = discretise(spec, Fidelity(5, 5))
-    x = np.asarray(disc.reference_points(geom))[disc.elem_points]          # (P, S2, 9, 2)
-    J = np.einsum("sqkc,pskd->psqdc", disc.basis_grads, x)
-    return float(np.sum(np.linalg.det(J) * disc.quad_weights[None]))
+    x = np.asarray(disc.reference_points(geom))[disc.mesh.elem_points]          # (P, S2, 9, 2)
+    J = np.einsum("sqkc,pskd->psqdc", disc.mesh.basis_grads, x)
+    return float(np.sum(np.linalg.det(J) * disc.mesh.quad_weights[None]))
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def design():
     geom["radii"] = jax.random.uniform(k1, geom["radii"].shape, minval=0.15, maxval=0.85)
     geom["corners"] = jax.random.uniform(k2, geom["corners"].shape, minval=-1.0, maxval=1.0)
     geom = disc.design.project(geom, disc.init_params())
-    return spec, geom, Outline.of(disc, disc.reference_points(geom))
+    return spec, geom, Outline.of(disc.mesh, disc.reference_points(geom))
 
 
 def test_outline_area_equals_the_quadrature_area(design):
@@ -119,7 +119,7 @@ def test_report_of_square_pores_is_known_in_closed_form():
     spec = scene_from_config(config.load("scene", "translation"))   # 5 x 5 cells of side 5
     disc = discretise(spec, Fidelity(5, 2))
     geom = {**disc.init_params(), "radii": jnp.full_like(disc.init_params()["radii"], 0.5)}
-    report = fabrication_report(Outline.of(disc, disc.reference_points(geom)), samples=8)
+    report = fabrication_report(Outline.of(disc.mesh, disc.reference_points(geom)), samples=8)
     n_pores = len(geom["radii"])
     assert report["pores"] == n_pores
     assert report["porosity"] == pytest.approx(n_pores * 2.5 ** 2 / 25.0 ** 2, rel=1e-12)

@@ -171,12 +171,12 @@ def test_a_run_with_fidelity_auto_discretises_at_the_chosen_setting(caplog):
     expected = choose("translation", 0.6)
     # the front picks the discretisation; the material (auto) the barrier: off at the paper's nu 0.3
     assert settings.fidelity == dataclasses.replace(expected.fidelity, inversion_barrier=0.0) and expected.reason in caplog.text
-    assert fingerprint(settings)["fidelity"]["ctrl_per_patch"] == expected.fidelity.ctrl_per_patch
+    assert fingerprint(settings)["fidelity"].get("ctrl_per_patch", 5) == expected.fidelity.ctrl_per_patch
     assert choice_of(settings.fidelity, "translation").reason == expected.reason
     disc = discretise(scene_from_config(settings.scene), settings.fidelity)
-    assert disc.fidelity == Resolution.of(expected.fidelity)
+    assert disc.mesh.fidelity == Resolution.of(expected.fidelity)
     record = fidelity_record(disc, settings.fidelity)
-    assert record["auto"]["tolerance"] == 0.6 and record["dofs"] == disc.n_dofs
+    assert record["auto"]["tolerance"] == 0.6 and record["dofs"] == disc.boundary.n_dofs
     assert (record["ctrl_per_patch"], record["quad_points"]) == (expected.fidelity.ctrl_per_patch,
                                                                  expected.fidelity.quad_points)
     with pytest.raises(ConfigError, match="fidelity.tolerance must be at least"):
@@ -212,7 +212,7 @@ def test_fidelity_scene_is_the_scenes_own_setting_measured_no_worse_than_the_pap
     larger than the paper's 5 x 5; the rotations state none (their reproductions' 5 x 2 is a first stage,
     refined at finer fidelities with contact), so they get the paper's.  Translation's 5 x 2 trains physical states
     with the inversion penalty, and so the penalty is on wherever its reproduction has it."""
-    from nma.train.runs import fingerprint, validate
+    from nma.train.runs import absent_means, fingerprint, validate
     from conftest import compose_cfg
 
     own = validate(compose_cfg(f"task={scene}", "logger=none"))
@@ -232,7 +232,8 @@ def test_fidelity_scene_is_the_scenes_own_setting_measured_no_worse_than_the_pap
     paper = validate(compose_cfg(f"task={scene}", "fidelity=paper", "logger=none"))
     assert (paper.fidelity.ctrl_per_patch, paper.fidelity.quad_points) == (5, 5)
     # the resolved setting is the run's record; the scene's field is not compared again on resume
-    assert "fidelity" not in fingerprint(paper)["scene"] and fingerprint(paper)["fidelity"]["quad_points"] == 5
+    assert "fidelity" not in fingerprint(paper)["scene"] and "quad_points" not in fingerprint(paper)["fidelity"]
+    assert absent_means(paper)["fidelity.quad_points"] == 5  # the record's absence: the default, 5
 
 
 def test_fidelity_scene_leaves_what_the_command_sets_and_checks_the_scenes_field():

@@ -27,17 +27,17 @@ def tight_simulator(scene, formulation="displacement"):
 def make_loss(sim, key):
     """A random smooth functional of every deformed control point (actuated ones included),
     of the tracked points, and for colour scenes of the colour-weighted material points."""
-    w = jax.random.normal(key, (sim.disc.n_points, 2)) / np.sqrt(sim.disc.n_points)
+    w = jax.random.normal(key, (sim.disc.mesh.n_points, 2)) / np.sqrt(sim.disc.mesh.n_points)
 
     def loss(params, d, mat):
         X = sim.reference_points(params)
         u, _ = sim.equilibrium(X, d, mat)
         x = X + u
-        out = jnp.sum(w * x) + 0.05 * jnp.sum(u ** 2) / sim.disc.n_points
+        out = jnp.sum(w * x) + 0.05 * jnp.sum(u ** 2) / sim.disc.mesh.n_points
         out += sum(jnp.sum(p ** 2) for p in sim.tracked(X, u).values()) * 1e-3
         if "colours" in params:
             c = sample_colours(params["colours"], 5)
-            out += jnp.sum(c[..., None] * sample_positions(sim.disc, x, 5)) * 1e-3
+            out += jnp.sum(c[..., None] * sample_positions(sim.disc.mesh, x, 5)) * 1e-3
         return out
 
     return jax.jit(loss), jax.jit(jax.grad(loss, argnums=(0, 1, 2)))
@@ -98,7 +98,7 @@ def test_translation_gradients_mixed_formulation():
 @pytest.mark.slow  # graded knots are checked in test_bspline, the adjoint in test_translation_gradients
 def test_gradients_of_the_well_posed_translation_with_graded_knots():
     """The paper's translation scene without its pinned corners (its actuated segments hold it: the
-    well-posed variant, docs/fidelity.md) at 8 x 3 with knots graded towards the patch corners."""
+    well-posed variant, docs/explanation/fidelity.md) at 8 x 3 with knots graded towards the patch corners."""
     spec = config.load("scene", "translation")
     disc = discretise(scene_from_config({**spec, "pinned": []}), Resolution(8, 3, grading=2.5))
     sim = Simulator(disc, "pardiso", TIGHT)
@@ -161,7 +161,7 @@ def test_gradients_with_the_inversion_barrier_acting(barrier_simulator):
     radii, d = barrier_case()
     sim, params, mat = barrier_simulator, {"radii": jnp.asarray(radii)}, material(0.07, 0.3)
     sol = sim.solve(params, jnp.asarray(d), mat)
-    assert StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(sol.u).min_J < 0.05  # the barrier is in its range here
+    assert StateChecker(sim.disc.mesh, np.asarray(sim.reference_points(params))).check(sol.u).min_J < 0.05  # the barrier is in its range here
     check_directional(sim, params, jnp.asarray(d), mat, jax.random.PRNGKey(0), ["radii", "actuation", "material"])
 
 
@@ -170,7 +170,7 @@ def test_the_inversion_penalty_is_differentiable_through_the_equilibrium():
     whose equilibrium at 5 x 2 without the barrier is inverted between Gauss points: the penalty acts, and
     its gradient with respect to the radii and the actuation, carried by the adjoint through u and
     directly through X, matches central differences.  Solved without the element bound, which would
-    stop Newton before that inverted state (the model the penalty was measured on, docs/validity.md)."""
+    stop Newton before that inverted state (the model the penalty was measured on, docs/explanation/physical-states.md)."""
     from conftest import barrier_case
     from nma.mechanics.energy import inversion_penalty
 
@@ -181,7 +181,7 @@ def test_the_inversion_penalty_is_differentiable_through_the_equilibrium():
     @jax.jit
     def penalty(radii, d):
         X = sim.reference_points({"radii": radii})
-        return inversion_penalty(sim.disc, X, sim.equilibrium(X, d, mat)[0], 0.2)
+        return inversion_penalty(sim.disc.mesh, X, sim.equilibrium(X, d, mat)[0], 0.2)
 
     radii, d = jnp.asarray(radii), jnp.asarray(d)
     assert float(penalty(radii, d)) > 0.04  # a check point inverted: (0.2 - det F)^2 > 0.04 there

@@ -1,4 +1,4 @@
-"""The package's layers (docs/layout.md): no import circle, the config schema read only by the command
+"""The package's layers (docs/reference/layout.md): no import circle, the config schema read only by the command
 layer, and a schema that loads without JAX.  Imports are read from the source (ast), the lazy ones inside
 functions included; those under `if TYPE_CHECKING:` are annotations for the reader and do not count."""
 import ast

@@ -28,9 +28,9 @@ def test_rigid_motion_has_zero_energy_and_force(translation, motion):
         c, s = np.cos(0.6), np.sin(0.6)
         u = X @ jnp.array([[c, s], [-s, c]]) - X
     mat = material(0.07, 0.3)
-    quad = quadrature(sim.disc, X)
-    assert abs(float(strain_energy(sim.disc, quad, u, mat))) < 1e-12
-    force, _ = force_and_tangents(sim.disc, quad, u, mat)
+    quad = quadrature(sim.disc.solid, X)
+    assert abs(float(strain_energy(sim.disc.solid, quad, u, mat))) < 1e-12
+    force, _ = force_and_tangents(sim.disc.solid, quad, u, mat)
     assert float(jnp.max(jnp.abs(force))) < 1e-12
 
 
@@ -38,15 +38,15 @@ def test_tangent_is_the_derivative_of_the_force(translation):
     """Element tangents contracted with a direction equal the directional derivative of the force."""
     sim, X = translation
     mat = material(0.07, 0.4)
-    quad = quadrature(sim.disc, X)
+    quad = quadrature(sim.disc.solid, X)
     key1, key2 = jax.random.split(jax.random.PRNGKey(1))
     u = 0.05 * jax.random.normal(key1, X.shape)
     v = jax.random.normal(key2, X.shape)
-    _, kel = force_and_tangents(sim.disc, quad, u, mat)
+    _, kel = force_and_tangents(sim.disc.solid, quad, u, mat)
     from nma.solver.assembly import element_dofs
-    ed = element_dofs(sim.disc)
+    ed = element_dofs(sim.disc.solid)
     Kv = jnp.zeros(X.size).at[ed].add(jnp.einsum("eab,eb->ea", kel.elements, v.reshape(-1)[ed]))
-    jvp = jax.jvp(lambda u: force_and_tangents(sim.disc, quad, u, mat)[0], (u,), (v,))[1]
+    jvp = jax.jvp(lambda u: force_and_tangents(sim.disc.solid, quad, u, mat)[0], (u,), (v,))[1]
     np.testing.assert_allclose(Kv, jvp.reshape(-1), rtol=1e-10, atol=1e-12)
 
 
@@ -55,16 +55,16 @@ def test_elements_in_chunks_give_the_terms_of_all_at_once(translation, monkeypat
     from nma.mechanics import energy
 
     sim, X = translation
-    quad = quadrature(sim.disc, X)
+    quad = quadrature(sim.disc.solid, X)
     u = 0.01 * jax.random.normal(jax.random.PRNGKey(2), X.shape)
     mat = material(0.07, 0.4)
-    n = np.prod(sim.disc.elem_points.shape[:2])
+    n = np.prod(sim.disc.mesh.elem_points.shape[:2])
     monkeypatch.setattr(energy, "ELEMENT_CHUNK", 100)
     assert n % 100, "the last chunk should be padded"
     results = []
     for above in (0, np.inf):  # every scene in chunks; none
         monkeypatch.setattr(energy, "CHUNK_ABOVE", above)
-        results.append(jax.jit(lambda u: energy.energy_force_tangents(sim.disc, quad, u, mat))(u))
+        results.append(jax.jit(lambda u: energy.energy_force_tangents(sim.disc.solid, quad, u, mat))(u))
     for chunked, whole in zip(*map(jax.tree_util.tree_leaves, results)):
         if not np.size(whole):  # the contact blocks of a scene without contact
             continue

@@ -20,7 +20,7 @@ SIZES = {
 @pytest.mark.parametrize("name", sorted(SIZES))
 def test_paper_scene_sizes(name):
     disc = discretise(scene_from_config(config.load("scene", name)))
-    assert (disc.n_patches, disc.n_points, disc.n_dofs) == SIZES[name]
+    assert (disc.mesh.n_patches, disc.mesh.n_points, disc.boundary.n_dofs) == SIZES[name]
 
 
 def test_scene_holds_only_what_it_needs():
@@ -34,7 +34,7 @@ def test_scene_holds_only_what_it_needs():
 def test_empty_and_solid_cells():
     cfg = {"name": "mini", "cells": ["PS", ".P"], "pinned": [[5, 0], [10, 0]]}
     disc = discretise(scene_from_config(cfg))
-    assert disc.n_patches == 4 + 1 + 4  # two porous cells, one solid, one empty
+    assert disc.mesh.n_patches == 4 + 1 + 4  # two porous cells, one solid, one empty
 
 
 def test_design_map_is_valid_across_the_radius_box():
@@ -43,7 +43,7 @@ def test_design_map_is_valid_across_the_radius_box():
     from nma.mechanics.energy import quadrature
     for r in (0.1, 0.9):
         q = {**p, "radii": jnp.full_like(p["radii"], r), "corners": jnp.full_like(p["corners"], 2.25)}
-        assert float(jnp.min(quadrature(disc, disc.reference_points(q)).det)) > 0
+        assert float(jnp.min(quadrature(disc.solid, disc.reference_points(q)).det)) > 0
 
 
 @pytest.mark.parametrize("bad, message", [
@@ -136,8 +136,8 @@ def test_refined_discretisation_keeps_geometry(grading):
     from nma.geometry.sampling import sample_positions
     Xc = coarse.reference_points(coarse.init_params())
     Xf = fine.reference_points(fine.init_params())
-    np.testing.assert_allclose(sample_positions(coarse, Xc, 7), sample_positions(fine, Xf, 7), atol=1e-12)
-    assert fine.n_points == discretise(spec, Resolution(8, 3)).n_points
+    np.testing.assert_allclose(sample_positions(coarse.mesh, Xc, 7), sample_positions(fine.mesh, Xf, 7), atol=1e-12)
+    assert fine.mesh.n_points == discretise(spec, Resolution(8, 3)).mesh.n_points
 
 
 def test_graded_knots_describe_the_same_body():
@@ -156,7 +156,7 @@ def test_graded_knots_describe_the_same_body():
         spec = scene_from_config(config.load("scene", name))
         uniform, graded = (discretise(spec, Resolution(8, 3, grading=g)) for g in (1.0, 3.0))
         X = {d: np.asarray(d.reference_points(d.init_params())) for d in (uniform, graded)}
-        outlines = [Outline.of(d, X[d]) for d in (uniform, graded)]
+        outlines = [Outline.of(d.mesh, X[d]) for d in (uniform, graded)]
         np.testing.assert_allclose(outlines[1].enclosed_areas(), outlines[0].enclosed_areas(), rtol=1e-12)
         for a, b in zip(outlines[0].loops, outlines[1].loops):  # the same curve: its corners match too
             np.testing.assert_allclose(b[:, [0, -1]], a[:, [0, -1]], atol=1e-12)
@@ -178,11 +178,11 @@ def test_graded_knots_describe_the_same_body():
             (iu, wu), (ig, wg) = uniform.pore_boundary(), graded.pore_boundary()
             np.testing.assert_allclose(np.einsum("nk,nkd->nd", wg, X[graded][ig]),
                                        np.einsum("nk,nkd->nd", wu, X[uniform][iu]), atol=1e-12)
-        assert StateChecker(graded, X[graded]).check(np.zeros_like(X[graded])).valid
+        assert StateChecker(graded.mesh, X[graded]).check(np.zeros_like(X[graded])).valid
     forces = []
     for g in (1.0, 3.0):
         cook = discretise(cooks_membrane(), Resolution(8, 3, grading=g))
-        X, f = np.asarray(cook.reference_points({})), cook.external_force.reshape(-1, 2)
+        X, f = np.asarray(cook.reference_points({})), cook.boundary.external_force.reshape(-1, 2)
         forces.append([*f.sum(axis=0), np.sum(X[:, 0] * f[:, 1] - X[:, 1] * f[:, 0])])
     np.testing.assert_allclose(forces[1], forces[0], rtol=1e-12)
 
@@ -192,7 +192,7 @@ def test_merging_follows_the_topology_not_the_radii(lo, init):
     """A radius at its bound must not merge a pore's sides into one point (nor split anything)."""
     cfg = {**config.load("scene", "translation"), "radii_bounds": [lo, 0.999999], "radii_init": init}
     disc = discretise(scene_from_config(cfg))
-    assert (disc.n_patches, disc.n_points, disc.n_dofs) == SIZES["translation"]
+    assert (disc.mesh.n_patches, disc.mesh.n_points, disc.boundary.n_dofs) == SIZES["translation"]
 
 
 @pytest.mark.parametrize("scene", ["rotation_double", "shape_matching"])
@@ -211,7 +211,7 @@ def test_projection_keeps_every_cell_convex(scene):
         q = design.project({**p, "corners": p["corners"] + step}, p)
         assert float(jnp.min(design.corner_turns(q))) >= MIN_TURN - 1e-9
         assert float(jnp.max(jnp.abs(q["corners"]))) <= 2.25
-        assert float(jnp.min(quadrature(disc, disc.reference_points(q)).det)) > 0
+        assert float(jnp.min(quadrature(disc.solid, disc.reference_points(q)).det)) > 0
     small = {**p, "corners": p["corners"] + 0.1}
     np.testing.assert_array_equal(design.project(small, p)["corners"], small["corners"])  # a valid step stays
     unprojected = {**p, "corners": jnp.clip(p["corners"] + step, -2.25, 2.25)}

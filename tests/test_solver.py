@@ -34,7 +34,7 @@ def test_extremes_converge(simulator, nu, sign):
     assert np.all(np.isfinite(sol.u)) and np.isfinite(sim.energy(sim.reference_points(sim.init_params()), sol.u, mat))
     assert float(sol.info.residual) <= float(sol.info.tolerance)
     # the Dirichlet groups moved exactly as declared: left by (-d0, 0)
-    left = sim.disc.group_points["left"]
+    left = sim.disc.boundary.group_points["left"]
     np.testing.assert_allclose(sol.u[left], np.tile([-float(d[0]), 0.0], (len(left), 1)))
 
 
@@ -67,7 +67,7 @@ def test_a_failed_solve_returns_the_last_equilibrium_it_reached(simulator):
     eq = sim.solve(sim.init_params(), d, mat, throw=False)
     load = float(eq.info.load)
     assert not eq.converged and 0.25 <= load < 1.0
-    left = disc.group_points["left"]
+    left = disc.boundary.group_points["left"]
     np.testing.assert_allclose(eq.u[left], np.tile([load * 2.0, 0.0], (len(left), 1)))
     reached = Simulator(disc, "pardiso").solve(sim.init_params(), load * d, mat)
     np.testing.assert_allclose(eq.u, reached.u, rtol=0, atol=1e-6 * float(np.abs(reached.u).max()))
@@ -77,7 +77,7 @@ def test_a_failed_solve_returns_the_last_equilibrium_it_reached(simulator):
     params = {"radii": jnp.asarray(radii)}
     eq = bounded.solve(params, jnp.asarray(d), mat, throw=False)
     assert not eq.converged and 0.0 < float(eq.info.load) < 1.0
-    assert StateChecker(bounded.disc, np.asarray(bounded.reference_points(params))).check(eq.u).valid
+    assert StateChecker(bounded.disc.mesh, np.asarray(bounded.reference_points(params))).check(eq.u).valid
 
 
 def test_status_is_returned_under_jit_without_nan():
@@ -307,7 +307,7 @@ def test_from_config_takes_a_presets_name():
 
     sim = Simulator.from_config("strip", "fast")
     fast = build(Fidelity, config.load("fidelity", "fast"))
-    assert sim.disc.fidelity.ctrl_per_patch == fast.ctrl_per_patch and sim.disc.spec.name == "strip"
+    assert sim.disc.mesh.fidelity.ctrl_per_patch == fast.ctrl_per_patch and sim.disc.spec.name == "strip"
     with pytest.raises(ConfigError, match="fidelity='quick' is unknown; choose one of"):
         Simulator.from_config("strip", "quick")
 
@@ -408,7 +408,7 @@ def test_inertia_counts_the_negative_eigenvalues_of_the_hessian():
     Ke = np.asarray(kel.elements)
     shifted = kel._replace(elements=Ke - np.median(np.abs(np.diagonal(Ke, axis1=1, axis2=2))) * np.eye(18))
     expected = int(np.sum(np.linalg.eigvalsh(np.asarray(DenseBackend(disc)._matrix(shifted, 0.0))) < 0))
-    assert 0 < expected < disc.n_dofs and sim.backend.negative_eigenvalues(shifted) == expected
+    assert 0 < expected < disc.boundary.n_dofs and sim.backend.negative_eigenvalues(shifted) == expected
 
 
 def test_pardiso_refines_a_solve_only_where_its_factorisation_perturbed_a_pivot():
@@ -571,7 +571,7 @@ def test_the_element_bound_fails_a_solve_that_inverts_and_changes_nothing_where_
     bounded = simulator("translation", ctrl_per_patch=5, quad_points=2)
     plain = simulator("translation", solver={"element_bound": False}, ctrl_per_patch=5, quad_points=2)
     assert bounded.options.element_bound and not plain.options.element_bound
-    checker = StateChecker(plain.disc, np.asarray(plain.reference_points(params)))
+    checker = StateChecker(plain.disc.mesh, np.asarray(plain.reference_points(params)))
     inverted = plain.solve(params, jnp.asarray(d), mat)
     assert checker.check(inverted.u).inverted_elements > 0
     with pytest.raises(SolverError, match="where the material would invert between Gauss points.*converged up to load factor 0"):

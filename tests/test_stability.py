@@ -39,7 +39,7 @@ def test_map_cells_at_nu_up_to_0_49_converge(simulator, scene, design, nu, d, in
     sol = sim.solve(params, jnp.asarray(d), mat)  # raises SolverError otherwise
     assert np.all(np.isfinite(sol.u)) and float(sol.info.residual) <= float(sol.info.tolerance)
     if inverts:
-        assert not StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(sol.u).valid
+        assert not StateChecker(sim.disc.mesh, np.asarray(sim.reference_points(params))).check(sol.u).valid
         bounded = simulator(scene).solve(params, jnp.asarray(d), mat, throw=False)
         assert bounded.info.status == Status.INVERTS and 0 < float(bounded.info.load) < 1
 
@@ -51,7 +51,7 @@ def test_nearly_incompressible_mixed_model_converges_with_the_inversion_barrier(
     the solve (the map's translation cell, radii in the middle, d = (4, 4), here at 5 x 3 with the
     default solver).  A nearly incompressible
     material keeps det F near 1 everywhere, so a barrier below det F 0.5 at the check points removes only
-    that spurious mode (Cook's membrane's check points stay above 0.76, docs/stability.md) and the solve
+    that spurious mode (Cook's membrane's check points stay above 0.76, docs/explanation/solver.md) and the solve
     reaches full load, a physical object."""
     from nma import config
     from nma.simulator import Simulator
@@ -64,7 +64,7 @@ def test_nearly_incompressible_mixed_model_converges_with_the_inversion_barrier(
                                     {"enabled": False}, "mixed")
         params = stability_map.designs(sim, np.random.default_rng(0))["radii in the middle"]
         sol = sim.solve(params, d, mat, throw=False)
-        state = StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u))
+        state = StateChecker(sim.disc.mesh, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u))
         outcomes.append((int(sol.info.status), float(sol.info.load), state.valid))
     (alone, alone_load, _), (barrier, barrier_load, valid) = outcomes
     assert alone == Status.INVERTS and alone_load < 1.0
@@ -76,9 +76,9 @@ def test_nearly_incompressible_snap_through_needs_long_load_steps_and_holds_at_8
     """The map's translation cell that the locking-free model (mixed, barrier 0.5, contact, trust region)
     did not finish at nu 0.499: random radii, d = (-4, 4).  Near load 0.9 its corrector crosses a
     snap-through at fixed load in about 150 iterations, the energy falling all the way; a load step cut
-    after 100 throws that away and the smaller increments meet the same snap (docs/stability.md).  Given
+    after 100 throws that away and the smaller increments meet the same snap (docs/explanation/solver.md).  Given
     300 a load step, it reaches full load at the paper's 5 x 5 (where its state folds between the check
-    points: docs/stability.md) and at 8 x 5, where it is a physical object."""
+    points: docs/explanation/solver.md) and at 8 x 5, where it is a physical object."""
     from nma import config
     from nma.simulator import Simulator
 
@@ -89,7 +89,7 @@ def test_nearly_incompressible_snap_through_needs_long_load_steps_and_holds_at_8
         sim = Simulator.from_config(config.load("scene", "translation"), fidelity, solver, {"enabled": True}, "mixed")
         params = stability_map.designs(sim, np.random.default_rng(0))["random radii"]  # the map's seed
         sol = sim.solve(params, d, mat)  # raises SolverError where it does not reach full load
-    assert StateChecker(sim.disc, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u)).valid
+    assert StateChecker(sim.disc.mesh, np.asarray(sim.reference_points(params))).check(np.asarray(sol.u)).valid
 
 
 def test_map_solves_only_the_cells_asked_for_on_the_mesh_asked_for():

@@ -174,9 +174,9 @@ def test_a_force_goal_trains(tmp_path):
 
 @pytest.mark.slow  # three trainings; test_a_spec_trains_as_its_class and the force-goal tests cover YAML tasks fast
 def test_the_tutorials_commands_run(tmp_path):
-    """docs/tutorial.md's training commands, at debug size (two steps at the fast discretisation): the
+    """docs/tutorials/own-scene-and-task.md's training commands, at debug size (two steps at the fast discretisation): the
     scene and the tasks it poses in YAML train, learned and frozen, a distance and a pore's area."""
-    text = (Path(__file__).resolve().parent.parent / "docs" / "tutorial.md").read_text()
+    text = (Path(__file__).resolve().parent.parent / "docs" / "tutorials" / "own-scene-and-task.md").read_text()
     commands = re.findall(r"^python3 -m nma\.run .*$", text, re.M)
     assert len(commands) == 3
     for k, line in enumerate(commands):

@@ -81,9 +81,9 @@ def test_hdf5_fields_match_the_solution(translation_run):
 
     with h5py.File(translation_run / "fields" / "eval_001.h5") as f:
         ref, cur, J, s = f["mesh/reference"][()], f["mesh/deformed"][()], f["fields/J"][()], f.attrs["samples_per_side"]
-    np.testing.assert_allclose(ref, np.asarray(sample_positions(sim.disc, X_file, s)).reshape(-1, 2), atol=1e-12)
-    np.testing.assert_allclose(cur, np.asarray(sample_positions(sim.disc, X_file + u_file, s)).reshape(-1, 2), atol=1e-12)
-    np.testing.assert_allclose(J, np.asarray(sample_jacobian(sim.disc, X_file, u_file, s)).reshape(-1), atol=1e-12)
+    np.testing.assert_allclose(ref, np.asarray(sample_positions(sim.disc.mesh, X_file, s)).reshape(-1, 2), atol=1e-12)
+    np.testing.assert_allclose(cur, np.asarray(sample_positions(sim.disc.mesh, X_file + u_file, s)).reshape(-1, 2), atol=1e-12)
+    np.testing.assert_allclose(J, np.asarray(sample_jacobian(sim.disc.mesh, X_file, u_file, s)).reshape(-1), atol=1e-12)
 
 
 # slow: the fast suite trains translation end to end (the translation_run fixture) and checks each other
@@ -164,7 +164,7 @@ def test_the_inversion_penalty_adds_its_weighted_term_to_each_converged_samples_
     params, ts = trainer.state["params"], task.sample(jax.random.PRNGKey(5), 3)
     total, (ok, losses, _, _) = trainer._loss_sum(params, ts)
     X, _, u, out, _ = trainer._forward(params, ts)
-    penalty = np.array([float(inversion_penalty(sim.disc, X, ui, 0.99)) for ui in u])
+    penalty = np.array([float(inversion_penalty(sim.disc.mesh, X, ui, 0.99)) for ui in u])
     task_losses = np.asarray(jax.vmap(task.loss)(out, ts))
     assert np.all(np.asarray(ok)) and np.any(penalty > 0)
     np.testing.assert_allclose(np.asarray(losses), task_losses + 0.5 * penalty, rtol=1e-12)

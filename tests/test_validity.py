@@ -22,7 +22,7 @@ def scene():
     represented with det F > 0 wherever the map itself has it."""
     disc = discretise(scene_from_config(config.load("scene", "translation")), Fidelity(11, 2))
     X = np.asarray(disc.reference_points(disc.init_params()))
-    return disc, X, StateChecker(disc, X)
+    return disc, X, StateChecker(disc.mesh, X)
 
 
 def smoothstep(s):
@@ -31,7 +31,7 @@ def smoothstep(s):
 
 
 def gauss_point_J(disc, X, u):
-    return np.asarray(det2(deformation_gradient(disc, quadrature(disc, X), u)))
+    return np.asarray(det2(deformation_gradient(disc.mesh, quadrature(disc.solid, X), u)))
 
 
 def test_the_rest_state_is_valid(scene):
@@ -91,7 +91,7 @@ def test_material_inverted_between_gauss_points_is_found(scene):
     """One interior control point pulled towards its neighbour: det F turns negative near it while every
     Gauss point (2 x 2 per element) stays positive; the Bernstein bound finds the inverted element."""
     disc, X, checker = scene
-    patch = disc.patch_points[0].reshape(11, 11)
+    patch = disc.mesh.patch_points[0].reshape(11, 11)
     k = patch[3, 3]
     direction = X[patch[4, 3]] - X[k]
     found = []
@@ -119,7 +119,7 @@ def test_the_bernstein_bound_agrees_with_a_dense_grid(scene):
         u = np.stack([3 * np.sin(2 * np.pi * (k[0, 0] * x + k[0, 1] * y) * 4),
                       3 * np.cos(2 * np.pi * (k[1, 0] * x + k[1, 1] * y) * 4)], axis=1) * rng.uniform(0.2, 1.0)
         v = checker.check(u)
-        dense = np.asarray(sample_jacobian(disc, X, u, 9 * 12 + 1)).min()  # 12 points per element side
+        dense = np.asarray(sample_jacobian(disc.mesh, X, u, 9 * 12 + 1)).min()  # 12 points per element side
         assert v.undecided_elements == 0
         assert (v.inverted_elements > 0) == (dense <= 0) or (v.inverted_elements > 0 and dense > -1e-9)
         assert v.min_J >= dense - 1e-12
@@ -133,13 +133,13 @@ def test_the_inversion_penalty_sees_det_f_where_the_check_does(scene):
     from nma.mechanics.energy import check_point_dets, inversion_penalty
 
     disc, X, checker = scene
-    patch = disc.patch_points[0].reshape(11, 11)
+    patch = disc.mesh.patch_points[0].reshape(11, 11)
     k = patch[4, 4]
     u = np.zeros_like(X)
     u[k] = 1.6 * (X[patch[5, 4]] - X[k])  # past its neighbour: inverted near it
-    J, defined = check_point_dets(disc, jnp.asarray(X), jnp.asarray(u))
+    J, defined = check_point_dets(disc.mesh, jnp.asarray(X), jnp.asarray(u))
     v = checker.check(u)
     assert v.inverted_elements > 0 and bool(jnp.all(defined))
     assert float(jnp.min(J)) == pytest.approx(v.min_J, rel=1e-9)  # the smallest is at a check point here
-    assert float(inversion_penalty(disc, jnp.asarray(X), jnp.asarray(u), 0.2)) >= (0.2 - v.min_J) ** 2
-    assert float(inversion_penalty(disc, jnp.asarray(X), jnp.zeros_like(jnp.asarray(X)), 0.2)) == 0.0
+    assert float(inversion_penalty(disc.mesh, jnp.asarray(X), jnp.asarray(u), 0.2)) >= (0.2 - v.min_J) ** 2
+    assert float(inversion_penalty(disc.mesh, jnp.asarray(X), jnp.zeros_like(jnp.asarray(X)), 0.2)) == 0.0

@@ -17,18 +17,18 @@ import numpy as np
 
 from .bspline import basis_matrix, gauss_legendre_01, span_breaks, span_points, span_weights
 
-if TYPE_CHECKING:  # discretise builds the contact model from the loops found here
-    from .discretise import Discretisation
+if TYPE_CHECKING:
+    from .mesh import Mesh
 
 def spans(loop: np.ndarray) -> int:
     """Knot spans per edge of a loop (n_edges, m, 2): m - 2."""
     return loop.shape[1] - 2
 
 
-def boundary_edges(disc: Discretisation) -> list[np.ndarray]:
+def boundary_edges(mesh: Mesh) -> list[np.ndarray]:
     """Point indices (m,) of each boundary edge, running counter-clockwise around its own patch."""
-    m = disc.fidelity.ctrl_per_patch
-    grid = disc.patch_points.reshape(-1, m, m)  # [patch, i along s, j along t]
+    m = mesh.fidelity.ctrl_per_patch
+    grid = mesh.patch_points.reshape(-1, m, m)  # [patch, i along s, j along t]
     sides = [grid[:, :, 0], grid[:, -1, :], grid[:, ::-1, -1], grid[:, 0, ::-1]]  # bottom, right, top, left
     count: dict[tuple, list] = {}
     for side in sides:
@@ -78,9 +78,9 @@ class Outline:
     grading: float = 1.0
 
     @classmethod
-    def of(cls, disc: Discretisation, points) -> "Outline":
-        """The outline of the control points `points` (n_points, 2) of `disc`."""
-        return cls.deformed(oriented_loops(disc, points), points, disc.fidelity.grading)
+    def of(cls, mesh: Mesh, points) -> "Outline":
+        """The outline of the control points `points` (n_points, 2) of `mesh`."""
+        return cls.deformed(oriented_loops(mesh, points), points, mesh.fidelity.grading)
 
     @classmethod
     def deformed(cls, loops: list[np.ndarray], points, grading: float = 1.0) -> "Outline":
@@ -128,12 +128,12 @@ class Outline:
         return (*pts.min(axis=0), *pts.max(axis=0))
 
 
-def oriented_loops(disc: Discretisation, points) -> list[np.ndarray]:
+def oriented_loops(mesh: Mesh, points) -> list[np.ndarray]:
     """The boundary loops as point indices (n_edges, m), the outer boundary first and counter-clockwise,
     the pores clockwise (the material on the left), at control points `points` (the reference)."""
     points = np.asarray(points, float)
-    loops = [np.stack(loop) for loop in chain(boundary_edges(disc))]
-    areas = np.asarray([float(enclosed_area(points[loop], disc.fidelity.grading)) for loop in loops])
+    loops = [np.stack(loop) for loop in chain(boundary_edges(mesh))]
+    areas = np.asarray([float(enclosed_area(points[loop], mesh.fidelity.grading)) for loop in loops])
     outer = int(np.argmax(np.abs(areas)))
     order = [outer] + [k for k in range(len(loops)) if k != outer]
     oriented = []

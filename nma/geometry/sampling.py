@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .bspline import DESIGN_CTRL, basis_matrix
-from .discretise import Discretisation
+from .mesh import Mesh
 
 
 @lru_cache(maxsize=None)
@@ -23,21 +23,21 @@ def grid_basis(n_ctrl: int, samples: int, grading: float = 1.0) -> tuple[np.ndar
     return kron(B, B), kron(dB, B), kron(B, dB)
 
 
-def patch_nets(disc: Discretisation, values: jnp.ndarray) -> jnp.ndarray:
+def patch_nets(mesh: Mesh, values: jnp.ndarray) -> jnp.ndarray:
     """(P, m*m, k) per-patch nets of a per-point array (n_points, k)."""
-    return values[disc.patch_points]
+    return values[mesh.patch_points]
 
 
-def sample_positions(disc: Discretisation, points: jnp.ndarray, samples: int) -> jnp.ndarray:
+def sample_positions(mesh: Mesh, points: jnp.ndarray, samples: int) -> jnp.ndarray:
     """(P, s*s, 2) positions of the material points for control points `points` (X or X + u)."""
-    B, _, _ = grid_basis(disc.fidelity.ctrl_per_patch, samples, disc.fidelity.grading)
-    return jnp.einsum("sk,pkd->psd", B, patch_nets(disc, points))
+    B, _, _ = grid_basis(mesh.fidelity.ctrl_per_patch, samples, mesh.fidelity.grading)
+    return jnp.einsum("sk,pkd->psd", B, patch_nets(mesh, points))
 
 
-def sample_jacobian(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray, samples: int) -> jnp.ndarray:
+def sample_jacobian(mesh: Mesh, X: jnp.ndarray, u: jnp.ndarray, samples: int) -> jnp.ndarray:
     """(P, s*s) det F of the deformation at the material points."""
-    _, dxi, deta = grid_basis(disc.fidelity.ctrl_per_patch, samples, disc.fidelity.grading)
-    grad = lambda v: jnp.stack([jnp.einsum("sk,pkd->psd", D, patch_nets(disc, v)) for D in (dxi, deta)], -1)
+    _, dxi, deta = grid_basis(mesh.fidelity.ctrl_per_patch, samples, mesh.fidelity.grading)
+    grad = lambda v: jnp.stack([jnp.einsum("sk,pkd->psd", D, patch_nets(mesh, v)) for D in (dxi, deta)], -1)
     dX, dx = grad(X), grad(X + u)  # (P, s*s, 2, 2): [component, parametric direction]
     det = lambda A: A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
     return det(dx) / det(dX)

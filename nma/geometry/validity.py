@@ -32,7 +32,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from .bspline import CHECK_POINTS, basis_matrix, span_points
-from .discretise import Discretisation
+from .mesh import Mesh
 from .outline import enclosed_area, oriented_loops, sample_loop
 
 PER_SPAN = 8       # polyline points per knot span of a boundary edge
@@ -68,19 +68,19 @@ def _element_bases(m: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray
     return basis_matrix(t, m, grading=grading), basis_matrix(t, m, 1, grading)
 
 
-def _element_centres(disc: Discretisation, points: np.ndarray) -> np.ndarray:
+def _element_centres(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     """(P * S * S, 2) the centre (parametric midpoint) of every Bezier element, in patch order."""
-    m, g = disc.fidelity.ctrl_per_patch, disc.fidelity.grading
+    m, g = mesh.fidelity.ctrl_per_patch, mesh.fidelity.grading
     B = basis_matrix(np.minimum(span_points(m, [0.5], g).ravel(), 1.0 - 1e-12), m, grading=g)
-    nets = points[disc.patch_points].reshape(disc.n_patches, m, m, 2)
+    nets = points[mesh.patch_points].reshape(mesh.n_patches, m, m, 2)
     return np.einsum("ai,bj,pijd->pabd", B, B, nets).reshape(-1, 2)
 
 
-def _jacobian_dets(disc: Discretisation, points: np.ndarray) -> np.ndarray:
+def _jacobian_dets(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     """det(dx/dxi) at the 4 x 4 points of every Bezier element: (..., P, S, S, 4, 4)."""
-    m = disc.fidelity.ctrl_per_patch
-    B, dB = _element_bases(m, disc.fidelity.grading)
-    nets = points[..., disc.patch_points, :].reshape(*points.shape[:-2], disc.n_patches, m, m, 2)
+    m = mesh.fidelity.ctrl_per_patch
+    B, dB = _element_bases(m, mesh.fidelity.grading)
+    nets = points[..., mesh.patch_points, :].reshape(*points.shape[:-2], mesh.n_patches, m, m, 2)
     dxi = np.einsum("ai,bj,...pijd->...pabd", dB, B, nets)
     deta = np.einsum("ai,bj,...pijd->...pabd", B, dB, nets)
     det = dxi[..., 0] * deta[..., 1] - dxi[..., 1] * deta[..., 0]  # (..., P, 4S, 4S)
@@ -122,10 +122,10 @@ class Validity:
 class StateChecker:
     """The checks of one discretisation, with what depends on the reference only computed once."""
 
-    def __init__(self, disc: Discretisation, X, per_span: int = PER_SPAN):
-        self.disc, self.per_span = disc, per_span
+    def __init__(self, mesh: Mesh, X, per_span: int = PER_SPAN):
+        self.mesh, self.per_span = mesh, per_span
         self.X = np.asarray(X, float)
-        self.loops = oriented_loops(disc, self.X)
+        self.loops = oriented_loops(mesh, self.X)
         reference = self._polylines(self.X)
         pores = reference[1:]
         self.names = ["outer boundary"] + ["pore at ({:.3g}, {:.3g})".format(*line.mean(axis=0)) for line in pores]
@@ -133,18 +133,18 @@ class StateChecker:
         closed = [np.concatenate([p, p[:1]]) for p in reference]
         self.ref_chords = np.concatenate([np.linalg.norm(np.diff(p, axis=0), axis=1) for p in closed])
         self.ref_midpoints = np.concatenate([0.5 * (p[1:] + p[:-1]) for p in closed])
-        self.ref_dets = _jacobian_dets(disc, self.X)  # > 0 wherever the reference is a valid map
-        self.centres = _element_centres(disc, self.X)
+        self.ref_dets = _jacobian_dets(mesh, self.X)  # > 0 wherever the reference is a valid map
+        self.centres = _element_centres(mesh, self.X)
         # gaps are looked for between curves whose boxes are this close: half a pore's size, so that a
         # pore's neighbours across a wall (and diagonally) are always among them
         self.margin = 0.5 * float(np.median([np.ptp(p, axis=0).max() for p in pores])) if pores else 0.0
 
     def _polylines(self, x: np.ndarray) -> list[np.ndarray]:
-        return [sample_loop(x[loop], self.per_span, self.disc.fidelity.grading) for loop in self.loops]
+        return [sample_loop(x[loop], self.per_span, self.mesh.fidelity.grading) for loop in self.loops]
 
     def _areas(self, x: np.ndarray) -> np.ndarray:
         """Enclosed areas (..., loops) of states x (..., n_points, 2)."""
-        return np.stack([enclosed_area(x[..., loop, :], self.disc.fidelity.grading) for loop in self.loops], axis=-1)
+        return np.stack([enclosed_area(x[..., loop, :], self.mesh.fidelity.grading) for loop in self.loops], axis=-1)
 
     @cached_property
     def resolution(self) -> str:
@@ -178,7 +178,7 @@ class StateChecker:
         """Per state: the smallest det F at the points evaluated, the elements inverted somewhere (certain),
         and those whose sign the bound left open."""
         n = len(x)
-        values = _jacobian_dets(self.disc, x).reshape(n, -1, 4, 4)  # one 4 x 4 table per element
+        values = _jacobian_dets(self.mesh, x).reshape(n, -1, 4, 4)  # one 4 x 4 table per element
         E = values.shape[1]
         ref = np.broadcast_to(self.ref_dets.reshape(1, E, 4, 4), values.shape).reshape(-1, 4, 4)
         values = values.reshape(-1, 4, 4)
@@ -215,7 +215,7 @@ class StateChecker:
         import shapely
 
         n, R = len(x), len(self.loops)
-        lines = [sample_loop(x[:, loop], self.per_span, self.disc.fidelity.grading) for loop in self.loops]
+        lines = [sample_loop(x[:, loop], self.per_span, self.mesh.fidelity.grading) for loop in self.loops]
         lines = [np.concatenate([p, p[:, :1]], axis=1) for p in lines]  # closed
         sizes = np.array([p.shape[1] for p in lines])
         coords = np.concatenate(lines, axis=1).reshape(-1, 2)  # state-major, then loop

@@ -42,8 +42,8 @@ def sampler(disc: Discretisation, X, samples: int = 9, compiled: bool = True):
     Compiled, one call per state, for writing many states' fields (eager, each call's dispatch costs more
     than compiling once)."""
     X = jnp.asarray(X)
-    ref = np.asarray(sample_positions(disc, X, samples))
-    deformed = lambda u: (sample_positions(disc, X + u, samples), sample_jacobian(disc, X, u, samples))  # noqa: E731
+    ref = np.asarray(sample_positions(disc.mesh, X, samples))
+    deformed = lambda u: (sample_positions(disc.mesh, X + u, samples), sample_jacobian(disc.mesh, X, u, samples))  # noqa: E731
     if compiled:
         deformed = jax.jit(deformed)
     return lambda u: (ref, *(np.asarray(a) for a in deformed(jnp.asarray(u))))
@@ -61,13 +61,13 @@ def write_fields(path: Path, disc: Discretisation, X, u, samples: int = 9, scala
     X, u = np.asarray(X), np.asarray(u)
     ref, cur, J = (sample or sampler(disc, X, samples, compiled=False))(u)
     ref, cur, J = ref.reshape(-1, 2), cur.reshape(-1, 2), J.reshape(-1)
-    cells = quad_cells(disc.n_patches, samples)
+    cells = quad_cells(disc.mesh.n_patches, samples)
     disp = np.concatenate([cur - ref, np.zeros((len(ref), 1))], axis=1)
     tmp = path.with_suffix(".h5.tmp")
     with h5py.File(tmp, "w") as f:
         f.create_dataset("control/reference", data=X)
         f.create_dataset("control/displacement", data=u)
-        f.create_dataset("control/patch_points", data=disc.patch_points)
+        f.create_dataset("control/patch_points", data=disc.mesh.patch_points)
         f.create_dataset("mesh/reference", data=ref)
         f.create_dataset("mesh/deformed", data=cur)
         f.create_dataset("mesh/cells", data=cells)

@@ -15,7 +15,7 @@ weighted by a 16th of the element's area joins the energy, and Newton's step bou
 the check points too (as it does without the barrier with solver.element_bound, the default).  Where
 det F >= J_hat at every check point, nothing changes.
 
-Formulations (`material.formulation`, stored in Discretisation.formulation):
+Formulations (`material.formulation`, Material.formulation):
 - `displacement`: W(F) at every Gauss point.
 - `mixed`: the volumetric term kappa/2 (log J)^2 is evaluated at the element's mean dilatation
       theta_e = (1 / A_e) integral_e J dA   (A_e the element's reference area),
@@ -34,10 +34,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..geometry.discretise import Discretisation
+from ..geometry.mesh import Mesh
 from . import contact
 from .barrier import ipc
-from .material import det2, det_roots, lame, neo_hookean, piola, tangent
+from .material import det2, det_roots, neo_hookean, piola, tangent
+from .solid import Solid
 
 
 class Quadrature(NamedTuple):
@@ -63,47 +64,47 @@ def _physical(dN: jnp.ndarray, Xe: jnp.ndarray, skip_degenerate: bool = False):
     return jnp.einsum("sqad,psqdj->psqaj", dN, inv), det
 
 
-def _check_geometry(disc: Discretisation, X: jnp.ndarray):
+def _check_geometry(mesh: Mesh, X: jnp.ndarray):
     """dN/dX (P, S2, 16, 9, 2) and det(dX/dxi) (P, S2, 16) at the 4 x 4 check points of every element
     (finite where the reference map degenerates, with det <= 0 there)."""
-    return _physical(jnp.asarray(disc.check_grads), X[disc.elem_points], skip_degenerate=True)
+    return _physical(jnp.asarray(mesh.check_grads), X[mesh.elem_points], skip_degenerate=True)
 
 
-def quadrature(disc: Discretisation, X: jnp.ndarray, check_points: bool = False) -> Quadrature:
+def quadrature(solid: Solid, X: jnp.ndarray, check_points: bool = False) -> Quadrature:
     """Physical basis gradients and weights from the reference control points X (n_points, 2); the check
     points' too with the inversion barrier, or where asked (`check_points`: Newton's element bound)."""
-    Xe = X[disc.elem_points]                                           # (P, S2, 9, 2)
-    G, det = _physical(jnp.asarray(disc.basis_grads), Xe)
-    if disc.fidelity.inversion_barrier > 0 or check_points:
-        Gc, detc = _check_geometry(disc, X)
-        checks = (Gc, jnp.asarray(disc.check_weights) * jnp.maximum(detc, 0.0))
+    Xe = X[solid.mesh.elem_points]                                     # (P, S2, 9, 2)
+    G, det = _physical(jnp.asarray(solid.mesh.basis_grads), Xe)
+    if solid.mesh.fidelity.inversion_barrier > 0 or check_points:
+        Gc, detc = _check_geometry(solid.mesh, X)
+        checks = (Gc, jnp.asarray(solid.mesh.check_weights) * jnp.maximum(detc, 0.0))
     else:  # no check points: nothing to compute (or to differentiate in the adjoint)
         checks = (jnp.zeros(det.shape[:2] + (0, 9, 2), X.dtype), jnp.zeros(det.shape[:2] + (0,), X.dtype))
-    walls = contact.reference_walls(disc.contact, X) if disc.contact else None
-    return Quadrature(G, jnp.asarray(disc.quad_weights) * det, det, *checks, X, walls)
+    walls = contact.reference_walls(solid.contact, X) if solid.contact else None
+    return Quadrature(G, jnp.asarray(solid.mesh.quad_weights) * det, det, *checks, X, walls)
 
 
-def deformation_gradient(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, at_checks: bool = False) -> jnp.ndarray:
+def deformation_gradient(mesh: Mesh, quad: Quadrature, u: jnp.ndarray, at_checks: bool = False) -> jnp.ndarray:
     """F at the Gauss points (P, S2, Q, 2, 2), or at the check points."""
-    ue = u[disc.elem_points]                                           # (P, S2, 9, 2)
+    ue = u[mesh.elem_points]                                           # (P, S2, 9, 2)
     return jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", ue, quad.check_grads if at_checks else quad.grads)
 
 
-def check_point_dets(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray):
+def check_point_dets(mesh: Mesh, X: jnp.ndarray, u: jnp.ndarray):
     """det F at the 4 x 4 check points of every element (P, S2, 16), corners included (where the barrier
     and nma.geometry.validity evaluate it), and where it is defined: False where the reference map
     degenerates (a collapsed corner, whose barrier weight is 0).  Needs no inversion barrier."""
-    Gc, detX = _check_geometry(disc, X)
-    return det2(jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", u[disc.elem_points], Gc)), detX > 0
+    Gc, detX = _check_geometry(mesh, X)
+    return det2(jnp.eye(2) + jnp.einsum("psai,psqaj->psqij", u[mesh.elem_points], Gc)), detX > 0
 
 
-def inversion_penalty(disc: Discretisation, X: jnp.ndarray, u: jnp.ndarray, margin: float) -> jnp.ndarray:
+def inversion_penalty(mesh: Mesh, X: jnp.ndarray, u: jnp.ndarray, margin: float) -> jnp.ndarray:
     """sum over the check points of max(0, margin - det F)^2: zero while det F >= margin at every one,
     smooth (C1), and growing with how far the material is inverted.  A design objective (a term of the
     training loss), not a term of the energy: it steers the design and its actuations away from states
     that invert, while each equilibrium stays that of the model without it.  It samples det F (4 x 4
     points an element); whether a state is physical is decided by nma.geometry.validity."""
-    J, defined = check_point_dets(disc, X, u)
+    J, defined = check_point_dets(mesh, X, u)
     return jnp.sum(jnp.where(defined, jnp.maximum(margin - J, 0.0) ** 2, 0.0))
 
 
@@ -132,13 +133,13 @@ def _det_derivatives(F: jnp.ndarray, G: jnp.ndarray):
 EPS = jnp.array([[0.0, 1.0], [-1.0, 0.0]])  # the 2D permutation symbol
 
 
-def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
+def strain_energy(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray) -> jnp.ndarray:
     """Integral of W over the reference domain (and the inversion barrier, and the contact barrier);
     +inf if any Gauss point, or with the barrier any check point, is inverted (J <= 0), or with contact a
     pore's walls have met."""
-    F = deformation_gradient(disc, quad, u)
-    mu, kappa = lame(mat)
-    mixed = disc.formulation == "mixed"
+    F = deformation_gradient(solid.mesh, quad, u)
+    mu, kappa = solid.material.moduli(mat)
+    mixed = solid.material.mixed
     J = det2(F)
     valid = jnp.all(J > 0)
     safe = jnp.where(J[..., None, None] > 0, F, jnp.eye(2))
@@ -147,22 +148,22 @@ def strain_energy(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: j
     if mixed:
         area, theta = _mean_dilatation(quad, jnp.where(J > 0, J, 1.0))  # J of `safe`, without recomputing it
         energy = energy + jnp.sum(area * 0.5 * kappa * jnp.log(theta) ** 2)
-    j_hat = disc.fidelity.inversion_barrier
+    j_hat = solid.mesh.fidelity.inversion_barrier
     if j_hat > 0:
-        Jc = det2(deformation_gradient(disc, quad, u, at_checks=True))
+        Jc = det2(deformation_gradient(solid.mesh, quad, u, at_checks=True))
         energy = energy + jnp.sum(quad.check_weights * _barrier(jnp.where(Jc > 0, Jc, j_hat), j_hat, kappa)[0])
         valid = valid & jnp.all((Jc > 0) | (quad.check_weights == 0))
-    if disc.contact:
-        energy = energy + contact.energy(disc.contact, quad.walls, quad.X + u, mu)  # inf: walls met
+    if solid.contact:
+        energy = energy + contact.energy(solid.contact, quad.walls, quad.X + u, mu)  # inf: walls met
     return jnp.where(valid, energy, jnp.inf)
 
 
-def _barrier_terms(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, kappa):
+def _barrier_terms(mesh: Mesh, quad: Quadrature, u: jnp.ndarray, kappa):
     """Energy, element forces (P, S2, 9, 2) and element tangents (P, S2, 9, 2, 9, 2) of the barrier:
     dJ/du_ai = cof(F)_ij G_aj and d2J/du_ai du_bk = eps_ik (G_a x G_b) in 2D."""
-    j_hat = disc.fidelity.inversion_barrier
+    j_hat = mesh.fidelity.inversion_barrier
     G = quad.check_grads
-    F = deformation_gradient(disc, quad, u, at_checks=True)
+    F = deformation_gradient(mesh, quad, u, at_checks=True)
     J = det2(F)
     b, db, ddb = _barrier(jnp.where(J > 0, J, j_hat), j_hat, kappa)
     w = quad.check_weights
@@ -191,7 +192,7 @@ def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
 
 # Each element's terms pass through per-Gauss-point intermediates (w G^T C alone is 14 KB per element
 # at 5 x 5 Gauss points): over a whole scene of 1,000+ elements they outgrow the cache and the kernel
-# turns memory-bound (up to 3.8x slower here, 32 MiB of L3).  On a CPU the elements therefore go through in
+# turns memory-bound.  On a CPU the elements therefore go through in
 # chunks that stay in cache (the same arithmetic, to round-off); a GPU takes them all at once.
 # `make bench-kernels` measures both.  Below CHUNK_ABOVE of w G^T C (576 bytes a Gauss point: the
 # reproductions' coarse fidelities, small scenes) chunks gain nothing measurable and only cost compile time.
@@ -232,11 +233,11 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
 
 class Tangents(NamedTuple):
     """The Hessian of the energy as 18 x 18 blocks, dofs ordered (a, i) -> 2 a + i over each block's
-    points (Discretisation.block_points: the Bezier elements', then the contact blocks').  Only the
+    points (Solid.block_points: the Bezier elements', then the contact blocks').  Only the
     contact blocks whose walls are within reach are kept, in the first of a fixed number of slots."""
     elements: jnp.ndarray  # (E, 18, 18) every Bezier element's
     contact: jnp.ndarray   # (C, 18, 18) the contact blocks whose walls are near; zero past them
-    which: jnp.ndarray     # (C,) the contact block in each slot (its index among disc.contact's pairs), -1: none
+    which: jnp.ndarray     # (C,) the contact block in each slot (its index among solid.contact's pairs), -1: none
     near: jnp.ndarray      # () how many contact blocks are near: more than C, some are missing (ask again)
 
     @property
@@ -244,25 +245,25 @@ class Tangents(NamedTuple):
         return self.near <= self.which.shape[-1]
 
 
-def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray,
+def energy_force_tangents(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray,
                           contact_normal=False, capacity: int | None = None):
-    """Strain energy, internal force (n_points, 2) and the Tangents, in one pass; with contact (disc.contact)
+    """Strain energy, internal force (n_points, 2) and the Tangents, in one pass; with contact (solid.contact)
     its near blocks in `capacity` slots (all blocks where None: never incomplete), `contact_normal` their
     normal stiffness only (nma.mechanics.contact.force_and_blocks).  The state must have J > 0 everywhere."""
-    mu, kappa = lame(mat)
-    mixed = disc.formulation == "mixed"
+    mu, kappa = solid.material.moduli(mat)
+    mixed = solid.material.mixed
     # the volumetric term at the Gauss points, or per element below
-    energy, fe, Ke = _element_terms(quad, u[disc.elem_points], mu, 0.0 if mixed else kappa)
+    energy, fe, Ke = _element_terms(quad, u[solid.mesh.elem_points], mu, 0.0 if mixed else kappa)
     if mixed:
-        ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(disc, quad, u), kappa)
+        ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(solid.mesh, quad, u), kappa)
         energy, fe, Ke = energy + ev, fe + fv, Ke + Kv
-    if disc.fidelity.inversion_barrier > 0:
-        eb, fb, Kb = _barrier_terms(disc, quad, u, kappa)
+    if solid.mesh.fidelity.inversion_barrier > 0:
+        eb, fb, Kb = _barrier_terms(solid.mesh, quad, u, kappa)
         energy, fe, Ke = energy + eb, fe + fb, Ke + Kb
-    force = jnp.zeros((disc.n_points, 2)).at[disc.elem_points].add(fe)
+    force = jnp.zeros((solid.mesh.n_points, 2)).at[solid.mesh.elem_points].add(fe)
     Ke = Ke.reshape(-1, 18, 18)
-    if disc.contact:
-        ec, fc, Kc, which, near = contact.force_and_blocks(disc.contact, quad.walls, quad.X + u, mu, capacity,
+    if solid.contact:
+        ec, fc, Kc, which, near = contact.force_and_blocks(solid.contact, quad.walls, quad.X + u, mu, capacity,
                                                            normal=contact_normal)
         energy, force = energy + ec, force + fc
     else:
@@ -270,11 +271,11 @@ def energy_force_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray
     return energy, force, Tangents(Ke, Kc, which, near)
 
 
-def force_and_tangents(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
-    return energy_force_tangents(disc, quad, u, mat)[1:]
+def force_and_tangents(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarray):
+    return energy_force_tangents(solid, quad, u, mat)[1:]
 
 
-def step_bounds(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf):
+def step_bounds(solid: Solid, quad: Quadrature, u: jnp.ndarray, du: jnp.ndarray, horizon=jnp.inf):
     """The three bounds of a step along du: the Gauss points' (det F > 0 at every one), the check points'
     (det F > 0 at every one, where the quadrature has them: the inversion barrier's, Newton's element
     bound; inf without) and the walls' (with contact, the time of impact of a pore-wall vertex on a
@@ -283,15 +284,15 @@ def step_bounds(disc: Discretisation, quad: Quadrature, u: jnp.ndarray, du: jnp.
     det(F + t dF) = c0 + c1 t + c2 t^2 exactly in 2D, so the material's bounds are smallest positive roots.
     The walls' bound is exact up to `horizon` (a caller that takes min(1, fraction * bound) needs no more);
     beyond it a step is not bounded by contact."""
-    gauss = _first_root(deformation_gradient(disc, quad, u), jnp.einsum("psai,psqaj->psqij", du[disc.elem_points],
-                                                                        quad.grads))
+    du_e = du[solid.mesh.elem_points]
+    gauss = _first_root(deformation_gradient(solid.mesh, quad, u), jnp.einsum("psai,psqaj->psqij", du_e, quad.grads))
     checks = jnp.asarray(jnp.inf, gauss.dtype)
     if quad.check_grads.shape[2]:
-        dF = jnp.einsum("psai,psqaj->psqij", du[disc.elem_points], quad.check_grads)
-        Fc = deformation_gradient(disc, quad, u, at_checks=True)
+        dF = jnp.einsum("psai,psqaj->psqij", du_e, quad.check_grads)
+        Fc = deformation_gradient(solid.mesh, quad, u, at_checks=True)
         skip = (quad.check_weights == 0)[..., None, None]  # where the reference map degenerates
         checks = _first_root(jnp.where(skip, jnp.eye(2), Fc), jnp.where(skip, 0.0, dF))
-    walls = contact.time_of_impact(disc.contact, quad.walls, quad.X + u, du, horizon) if disc.contact else jnp.inf
+    walls = contact.time_of_impact(solid.contact, quad.walls, quad.X + u, du, horizon) if solid.contact else jnp.inf
     return gauss, checks, jnp.asarray(walls, gauss.dtype)
 
 

@@ -5,10 +5,35 @@ The material is an array [E, nu] so that it is a differentiable input like any o
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import jax.numpy as jnp
 
+from ..errors import ConfigError
 from ..settings import check_range
-from .options import MATERIAL_RANGES
+from .options import FORMULATIONS, MATERIAL_RANGES
+
+
+@dataclass(frozen=True)
+class Material:
+    """The model's material: the Neo-Hookean law with its treatment of volume change, `formulation`
+    (one of FORMULATIONS: the volume term at every Gauss point, or at each element's mean dilatation,
+    which does not lock as nu -> 0.5: nma.mechanics.energy).  Its parameters [E, nu] are an array given
+    to every solve (`material(E, nu)`), so that they are differentiable like the geometry."""
+    formulation: str = "displacement"
+
+    def __post_init__(self):
+        if self.formulation not in FORMULATIONS:
+            raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {self.formulation!r}")
+
+    @property
+    def mixed(self) -> bool:
+        return self.formulation == "mixed"
+
+    @staticmethod
+    def moduli(params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """The shear and bulk moduli (mu, kappa) of the parameters [E, nu]."""
+        return lame(params)
 
 
 def material(E: float, nu: float) -> jnp.ndarray:

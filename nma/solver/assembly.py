@@ -7,12 +7,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.discretise import Discretisation
+from ..mechanics.solid import Solid
 
 
-def element_dofs(disc: Discretisation) -> np.ndarray:
+def element_dofs(solid: Solid) -> np.ndarray:
     """(E, 18) global dof index of each tangent block's rows (Bezier elements, then contact blocks),
     ordered (a, i) -> 2 a + i."""
-    pts = disc.block_points
+    pts = solid.block_points
     return (2 * pts[:, :, None] + np.arange(2)).reshape(-1, 18)
 
 
@@ -52,21 +53,21 @@ class SparsePattern:
 
 
 def free_index(disc: Discretisation) -> np.ndarray:
-    idx = np.full(2 * disc.n_points, -1, dtype=np.int64)
-    idx[disc.free_dofs] = np.arange(disc.n_dofs)
+    idx = np.full(2 * disc.mesh.n_points, -1, dtype=np.int64)
+    idx[disc.boundary.free_dofs] = np.arange(disc.boundary.n_dofs)
     return idx
 
 
 def element_entries(disc: Discretisation) -> tuple[np.ndarray, np.ndarray]:
     """Free row and column of every element tangent entry (-1 where a Dirichlet dof is involved)."""
-    fdof = free_index(disc)[element_dofs(disc)]                   # (E, 18)
+    fdof = free_index(disc)[element_dofs(disc.solid)]                   # (E, 18)
     rows = np.broadcast_to(fdof[:, :, None], fdof.shape + (18,)).reshape(-1)
     cols = np.broadcast_to(fdof[:, None, :], fdof.shape[:1] + (18, 18)).reshape(-1)
     return rows, cols
 
 
 def sparse_pattern(disc: Discretisation, upper: bool) -> SparsePattern:
-    n = disc.n_dofs
+    n = disc.boundary.n_dofs
     rows, cols = element_entries(disc)
     keep = (rows >= 0) & (cols >= 0)
     if upper:
@@ -78,7 +79,7 @@ def sparse_pattern(disc: Discretisation, upper: bool) -> SparsePattern:
     r, c = unique // n, unique % n
     indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
     diag = np.searchsorted(unique, np.arange(n) * n + np.arange(n))
-    elements = disc.elem_points.reshape(-1, 9).shape[0]
+    elements = disc.mesh.elem_points.reshape(-1, 9).shape[0]
     kept = np.flatnonzero(scatter[:elements * 18 * 18] < len(unique))
     return SparsePattern(n, upper, indptr.astype(np.int64), c.astype(np.int64), scatter, diag, elements, kept,
                          scatter[kept])

@@ -19,15 +19,15 @@ class Equations:
     `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
 
     def __init__(self, disc: Discretisation, contact_slots: int | None = None):
-        self.disc = disc
+        self.solid, self.boundary = disc.solid, disc.boundary
         self.contact_slots = contact_slots
-        self.free = jnp.asarray(disc.free_dofs)
-        self.dirichlet = jnp.asarray(disc.dirichlet_dofs)
-        self.A = jnp.asarray(disc.actuation_matrix)
-        self.f_ext = jnp.asarray(disc.external_force)
+        self.free = jnp.asarray(disc.boundary.free_dofs)
+        self.dirichlet = jnp.asarray(disc.boundary.dirichlet_dofs)
+        self.A = jnp.asarray(disc.boundary.actuation_matrix)
+        self.f_ext = jnp.asarray(disc.boundary.external_force)
         self.f_free = self.f_ext[self.free]
-        self.edofs = jnp.asarray(element_dofs(disc))
-        self.elements = disc.elem_points.reshape(-1, 9).shape[0]
+        self.edofs = jnp.asarray(element_dofs(disc.solid))
+        self.elements = disc.mesh.elem_points.reshape(-1, 9).shape[0]
 
     def with_contact_slots(self, slots: int | None) -> "Equations":
         """The same equations, their linearisations with room for `slots` contact blocks."""
@@ -37,13 +37,13 @@ class Equations:
 
     def full(self, u_free, u_dir):
         """Every control point's displacement from the free DOFs and the prescribed ones."""
-        u = jnp.zeros(2 * self.disc.n_points, u_free.dtype)
+        u = jnp.zeros(2 * self.solid.mesh.n_points, u_free.dtype)
         return u.at[self.free].set(u_free).at[self.dirichlet].set(u_dir).reshape(-1, 2)
 
     def potential(self, quad, u_free, u_dir, load, mat):
         """Strain energy less the work of the dead load at load factor `load`."""
         u = self.full(u_free, u_dir)
-        return strain_energy(self.disc, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
+        return strain_energy(self.solid, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
 
     def residual(self, quad, u_free, u_dir, load, mat):
         return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat)
@@ -52,7 +52,7 @@ class Equations:
         """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks of
         its normal stiffness only, nma.mechanics.contact.force_and_blocks)."""
         u = self.full(u_free, u_dir)
-        energy, force, kel = energy_force_tangents(self.disc, quad, u, mat, contact_normal, self.contact_slots)
+        energy, force, kel = energy_force_tangents(self.solid, quad, u, mat, contact_normal, self.contact_slots)
         potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
         return potential, force.reshape(-1)[self.free] - load * self.f_free, kel
 
@@ -64,12 +64,12 @@ class Equations:
 
     def curvature(self, kel: Tangents, v_free):
         """v^T K_ff v: the energy's second derivative along the free-dof direction v."""
-        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.free].set(v_free)
+        v = jnp.zeros(2 * self.solid.mesh.n_points, kel.elements.dtype).at[self.free].set(v_free)
         return sum(jnp.einsum("ea,eab,eb->", v[dofs], K, v[dofs]) for dofs, K in self.blocks(kel))
 
     def coupling(self, kel: Tangents, u_D):
         """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
-        v = jnp.zeros(2 * self.disc.n_points, kel.elements.dtype).at[self.dirichlet].set(u_D)
+        v = jnp.zeros(2 * self.solid.mesh.n_points, kel.elements.dtype).at[self.dirichlet].set(u_D)
         f = jnp.zeros_like(v)
         for dofs, K in self.blocks(kel):
             f = f.at[dofs].add(jnp.einsum("eab,eb->ea", K, v[dofs]))
@@ -78,19 +78,19 @@ class Equations:
 
 def energy_at(eqs: Equations, X, d, mat, u_free):
     """The potential energy of a state at full load."""
-    return eqs.potential(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
+    return eqs.potential(quadrature(eqs.solid, X), u_free, eqs.A @ d, 1.0, mat)
 
 
 def tangents_at(eqs: Equations, X, d, mat, u_free):
     """The Tangents at a converged state (the adjoint's matrix)."""
-    return energy_force_tangents(eqs.disc, quadrature(eqs.disc, X), eqs.full(u_free, eqs.A @ d), mat,
+    return energy_force_tangents(eqs.solid, quadrature(eqs.solid, X), eqs.full(u_free, eqs.A @ d), mat,
                                  capacity=eqs.contact_slots)[2]
 
 
 def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
     """(X, d, mat)_bar = -adjoint^T dR_f/d(X, d, mat) at fixed free displacements."""
     def residual(X, d, mat):
-        return eqs.residual(quadrature(eqs.disc, X), u_free, eqs.A @ d, 1.0, mat)
+        return eqs.residual(quadrature(eqs.solid, X), u_free, eqs.A @ d, 1.0, mat)
 
     return jax.vjp(residual, X, d, mat)[1](-adjoint)
 

@@ -90,7 +90,7 @@ class HostNewton:
         what a solve computes depends on its input only, not on the solves before it."""
         slots = slots or CONTACT_SLOTS
         while True:
-            room = min(slots, self.eqs.disc.contact.n_blocks) if self.eqs.disc.contact else None
+            room = min(slots, self.eqs.solid.contact.n_blocks) if self.eqs.solid.contact else None
             with self._lock:
                 kernels = self._kernels.get(room) or self._kernels.setdefault(
                     room, Kernels(self.eqs.with_contact_slots(room), self.opts))

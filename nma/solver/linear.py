@@ -251,8 +251,8 @@ class DenseBackend:
 
     def __init__(self, disc: Discretisation):
         rows, cols = element_entries(disc)
-        self.n = disc.n_dofs
-        E = disc.elem_points.reshape(-1, 9).shape[0] * 18 * 18
+        self.n = disc.boundary.n_dofs
+        E = disc.mesh.elem_points.reshape(-1, 9).shape[0] * 18 * 18
         keep = np.flatnonzero((rows[:E] >= 0) & (cols[:E] >= 0))
         self.keep, self.rows, self.cols = keep, rows[keep], cols[keep]
         # each contact block's entries, a Dirichlet dof's row or column past the matrix (dropped)
@@ -284,7 +284,7 @@ def pardiso_available() -> bool:
 
 @LINEAR_SOLVERS.register("auto")
 def auto_backend(disc: Discretisation):
-    """PARDISO where Intel MKL installs (x86-64: it factorises the paper scenes' Hessians 4-7x faster
+    """PARDISO where Intel MKL installs (x86-64: it factorises the paper scenes' Hessians several times faster
     than SuperLU), SuperLU elsewhere (ARM laptops): the same answers, to round-off."""
     if pardiso_available():
         return PardisoBackend(disc)

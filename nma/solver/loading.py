@@ -67,7 +67,7 @@ def bounds(eqs: Equations, p: Problem, u, lam, du, dlam, horizon):
     """The largest steps along (du, dlam) that keep J > 0 at every Gauss point, at every check point (inf
     without them: element_bound, the inversion barrier), and with contact no pore's walls meeting (exact
     up to `horizon`, the longest step the caller takes; inf without); 0 where undefined."""
-    found = material_and_wall_bounds(eqs.disc, p.quad, eqs.full(u, p.boundary(lam)),
+    found = material_and_wall_bounds(eqs.solid, p.quad, eqs.full(u, p.boundary(lam)),
                                      eqs.full(du, dlam * (p.u_D - p.u_D0)), horizon)
     return tuple(jnp.where(jnp.isnan(b), 0.0, b) for b in found)
 

@@ -30,7 +30,7 @@ FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, 
 norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the
 structure.  The load steps before the last may close at a looser path_rtol instead (0, the default:
 rtol): the next predictor's right-hand side carries the residual left, but where several equilibria
-lie near one actuation (walls in contact) the looser path can end on another (docs/validity.md).  A
+lie near one actuation (walls in contact) the looser path can end on another (docs/explanation/physical-states.md).  A
 warm solve (setup's `start`) walks the same way from another sample's equilibrium: the prescribed
 displacements from that sample's to this one's.  The converged state is a stationary point of the
 energy, usually a minimum; where a symmetric path has passed a buckling point it can be a saddle
@@ -74,11 +74,11 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     where the design moved since: the first-order response to the change of design and actuation
     together.  The tolerance is the cold solve's either way (the force scale of the full load, from
     the tangent at rest), so a warm answer meets the same test as a cold one."""
-    quad = quadrature(eqs.disc, X, check_points=opts.element_bound)
+    quad = quadrature(eqs.solid, X, check_points=opts.element_bound)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
     scalar = lambda v: jnp.asarray(v, X.dtype)  # noqa: E731
-    zero = jnp.zeros(eqs.disc.n_dofs, X.dtype)
+    zero = jnp.zeros(eqs.boundary.n_dofs, X.dtype)
     size = jnp.max(jnp.ptp(X, axis=0))
     if start is None:
         p = Problem(quad, u_D, mat, size, jnp.zeros_like(u_D), scalar(0.0))
@@ -92,14 +92,14 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     if start is not None and opts.element_bound:
         # a start inverted between Gauss points under this design (it moved since): no bound holds from
         # there, so the warm solve ends at once (INVERTS) and is redone cold
-        J, defined = check_point_dets(eqs.disc, X, eqs.full(u0, u_D0))
+        J, defined = check_point_dets(eqs.solid.mesh, X, eqs.full(u0, u_D0))
         status = jnp.where(finite & jnp.any((J <= 0) & defined), Status.INVERTS, status)
-    if start is not None and eqs.disc.contact:
+    if start is not None and eqs.solid.contact:
         # the start's displacements carried from the design it was solved on to this one: where a wall
         # vertex meets a chord on the way, the start is interpenetrated here (the barrier sees distances,
         # not sides, and would keep it so), so the warm solve ends at once and is redone cold
         x0 = X0 + eqs.full(u0, u_D0)
-        crossed = contact.time_of_impact(eqs.disc.contact, quad.walls, x0, X - X0, horizon=1.0) <= 1.0
+        crossed = contact.time_of_impact(eqs.solid.contact, quad.walls, x0, X - X0, horizon=1.0) <= 1.0
         status = jnp.where(finite & crossed, Status.WALLS_CROSS, status)
     init = State(u=u0, lam=scalar(0.0), u_conv=u0, lam_conv=scalar(0.0), dlam=scalar(opts.initial_increment),
                  predictor=jnp.asarray(True), shift=scalar(0.0), it=jnp.asarray(0), step_it=jnp.asarray(0),
@@ -143,7 +143,7 @@ def _contact_normal(eqs: Equations, opts: NewtonOptions, s: State):
     took 200 iterations and more now take 98-119).  Near equilibrium the exact one, so that Newton
     converges quadratically and a converged state's factor is of the exact Hessian (its inertia, the
     adjoint).  False (a static branch) without contact or with contact_exact_below = 0."""
-    if not (eqs.disc.contact and opts.contact_exact_below > 0):
+    if not (eqs.solid.contact and opts.contact_exact_below > 0):
         return False
     return (s.it > 0) & ~s.predictor & ((s.step_it == 0) | (s.rnorm > opts.contact_exact_below * s.f_ref))
 
@@ -197,7 +197,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     # the fraction of the increment the load goes (the free dofs go a of the predictor)
     reach = loading.past_the_walls(eqs, opts, p, s.u + a * step, s.lam + a * dlam, (1.0 - a) * dlam,
                                    predictor & (walls < material) & (p.mat[1] < NEARLY_INCOMPRESSIBLE)) \
-        if eqs.disc.contact else 0.0
+        if eqs.solid.contact else 0.0
     a_load = a + reach * (1.0 - a)
     u_new, lam_new, dlam_new, dlam_cut = loading.after_step(s, s.u + a * step, moved, cut, a_load)
     shift_new, shift_memory = corrector.next_shift(s, trial, cut)

