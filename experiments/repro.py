@@ -22,6 +22,8 @@ from pathlib import Path
 
 import matplotlib
 
+import results
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
@@ -34,6 +36,7 @@ STAGES = (("refine", "refined"), ("finish", "finished"))
 # unchanged hinges between Gauss points in every sample of a batch, and a frozen design cannot be steered
 # away.  So it trains without the bound; the validity check still reports its final states.
 BASELINE = {"shape_matching": ["solver.element_bound=false"]}
+COMMAND = ["python", "experiments/repro.py", *sys.argv[1:]]  # what a result's stamp says made it
 
 
 def stages(name: str) -> list[tuple[str, str]]:
@@ -47,12 +50,14 @@ def stages(name: str) -> list[tuple[str, str]]:
 
 def digital_mnist(out: Path, overrides: list[str]):
     """The paper's three phases in sequence, each starting from the one before."""
-    seconds = {}
+    seconds, t0 = {}, time.perf_counter()
     for phase, extra in (("lookup", []),
                          ("fit", [f"task.lookup_run={out / 'lookup'}", f"trainer.init_from={out / 'lookup'}"]),
                          ("finetune", [f"trainer.init_from={out / 'fit'}"])):
         seconds[phase] = train(f"mnist_{phase}", out / phase, [*extra, *overrides])["wall_seconds"]
     (out / "seconds.json").write_text(json.dumps(seconds))
+    reevaluate(out, "finetune", ["eval_subset=200"])
+    (out / "stamp.json").write_text(json.dumps(results.stamp(COMMAND, time.perf_counter() - t0)))
     summarise_digital_mnist(out)
 
 
@@ -80,7 +85,32 @@ def summarise_digital_mnist(out: Path):
               "digits), finetune/figures/deformed.png (held-out images and what the material shows), "
               "*/figures/colours.png (the colour field)"]
     (out / "comparison.md").write_text("\n".join(lines) + "\n")
+    publish("digital_mnist", out, summary, [])
     print((out / "comparison.md").read_text())
+
+
+def reevaluate(out: Path, run: str, extra: list[str] = ()) -> None:
+    """The compared design re-solved at 14 x 5 (nma.evaluate) -> out/reevaluated.json: the metric where the
+    model is finer than any it trained at."""
+    cmd = [sys.executable, "-m", "nma.evaluate", f"run={out / run}", "fidelity.ctrl_per_patch=14",
+           "fidelity.quad_points=5", *extra]
+    done = json.loads(subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True, text=True).stdout)
+    at = done["evaluated_fidelity"]
+    (out / "reevaluated.json").write_text(json.dumps({
+        "run": run, "fidelity": "14 x 5", "value": at["metric"], "samples": done["samples"],
+        "failed_solves": at["failed_solves"], "invalid_states": at.get("invalid_states")}, indent=1))
+
+
+def publish(name: str, out: Path, summary: dict, figures: list[Path]) -> None:
+    """results/<name>/ from a reproduction's summary, where its runs were stamped when they trained."""
+    if out.resolve() != (ROOT / "outputs" / "repro" / name).resolve():  # a variant (--out): not the result
+        return
+    if not (out / "stamp.json").is_file():
+        print(f"{out}: no stamp.json (runs from before results were stamped): results/{name} not written")
+        return
+    again = out / "reevaluated.json"
+    summary = {**summary, **({"reevaluated": json.loads(again.read_text())} if again.is_file() else {})}
+    results.write(name, summary, (out / "comparison.md").read_text(), figures, json.loads((out / "stamp.json").read_text()))
 
 
 def train(name: str, run_dir: Path, overrides: list[str]) -> dict:
@@ -116,11 +146,14 @@ def main():
                 extra.append("trainer.animation_frames=0")  # (24 solves, about 20 s at 8 x 2 with contact)
             seconds[run] = train(experiment, out / run, [*extra, *args.overrides])["wall_seconds"]
             before = run
+        t0 = time.perf_counter() - sum(seconds.values())
         seconds["baseline"] = train(args.name, out / "baseline", ["trainer.freeze_geometry=true",
                                                                   f"trainer.steps={args.baseline_steps}",
                                                                   *BASELINE.get(args.name, []),
                                                                   *args.overrides])["wall_seconds"]
         (out / "seconds.json").write_text(json.dumps(seconds))
+        reevaluate(out, later[-1][1] if later else "joint")
+        (out / "stamp.json").write_text(json.dumps(results.stamp(COMMAND, time.perf_counter() - t0)))
     summarise(out, args.name, [run for _, run in later])
 
 
@@ -188,12 +221,14 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
     fig.tight_layout()
     fig.savefig(out / "comparison.png", dpi=130)
     plt.close(fig)
+    figures = [out / "comparison.png"]
     if experiment == "shape_matching":
-        figure_shapes_side_by_side(out)
+        figures.append(figure_shapes_side_by_side(out))
+    publish(experiment, out, summary, figures)
     print((out / "comparison.md").read_text())
 
 
-def figure_shapes_side_by_side(out: Path, n: int = 8):
+def figure_shapes_side_by_side(out: Path, n: int = 8) -> Path:
     """The same held-out targets reached by the joint design (top) and the frozen one (bottom)."""
     import h5py
 
@@ -221,6 +256,7 @@ def figure_shapes_side_by_side(out: Path, n: int = 8):
     fig.tight_layout()
     fig.savefig(out / "shapes.png", dpi=130)
     plt.close(fig)
+    return out / "shapes.png"
 
 
 if __name__ == "__main__":
