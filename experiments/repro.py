@@ -22,7 +22,8 @@ from pathlib import Path
 
 import matplotlib
 
-import results
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # experiments/results.py, run as a script or imported
+import results  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
