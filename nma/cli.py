@@ -15,6 +15,7 @@ directory.  Under MPI every rank checks and exits, and rank 0 alone prints.
 from __future__ import annotations
 
 import copy
+import difflib
 import itertools
 import math
 import os
@@ -52,10 +53,16 @@ def _one_line(exc: BaseException) -> str:
             # scene defaults to the task's option name; a task posed in YAML may be named otherwise
             return (f"task={name} names no scene of its own name (scene={name} is unknown): give its scene, "
                     f"scene=<one of {options}>")
-        if group and name.endswith("_schema"):  # a config file's defaults list names a schema
+        schemas = []
+        if group:
             from hydra.core.config_store import ConfigStore
 
-            schemas = sorted(o.removesuffix(".yaml") for o in ConfigStore.instance().list(group) if "_schema" in o)
+            try:
+                schemas = sorted(o.removesuffix(".yaml") for o in ConfigStore.instance().list(group) if "_schema" in o)
+            except OSError:  # a group with no schema in the store
+                schemas = []
+        if group and (name.endswith("_schema") or difflib.get_close_matches(name, schemas, 1, 0.8)):
+            # a config file's defaults list names a schema (or one misspelt)
             return f"the schema {name} in a {group} file's defaults list is unknown; choose one of {schemas}"
         if group:
             from .registry import broken_plugins
@@ -93,22 +100,28 @@ def compose(config_name: str, overrides: list[str], config_dir: str | None = Non
         mine = Path(config_dir)
         if not mine.is_dir():
             raise ConfigError(f"--config-dir {config_dir} is not a directory")
-        clashes = sorted(str(p.relative_to(mine)) for p in mine.rglob("*.yaml")
-                         if (CONF_DIR / p.relative_to(mine)).is_file())
-        if clashes:  # Hydra reads conf/ first: the shipped file would be used in place of the user's
-            raise ConfigError(f"--config-dir {config_dir}: {', '.join(clashes)} has the name of a config nma ships "
-                              f"(conf/), which would be read in its place: give yours a name of its own")
+        _refuse_clashes(mine, f"--config-dir {config_dir}")
         overrides = [*overrides, f"hydra.searchpath=[file://{mine.absolute()}]"]
     for override in overrides:  # Hydra passes over a search path that does not exist
         if override.startswith(("hydra.searchpath=", "+hydra.searchpath=")):
             for entry in re.findall(r"file://([^,\]\s'\"]+)", override):
                 if not Path(entry).is_dir():
                     raise ConfigError(f"hydra.searchpath names {entry}, which is not a directory")
+                _refuse_clashes(Path(entry), f"hydra.searchpath entry {entry}")
     primary = CONF_DIR if config_path is None else Path(__file__).parent / config_path  # an absolute one wins
     if not primary.is_dir():
         raise ConfigError(f"--config-path {config_path} is not a directory ({primary})")
     with initialize_config_dir(config_dir=str(primary.resolve()), version_base="1.3"):
         return hydra_compose(config_name, overrides=overrides, return_hydra_config=True)
+
+
+def _refuse_clashes(mine: Path, what: str) -> None:
+    """A directory of the user's configs may not hold a file of a shipped config's name: Hydra reads
+    conf/ first, so the shipped file would be used in place of the user's, without a word."""
+    clashes = sorted(str(p.relative_to(mine)) for p in mine.rglob("*.yaml") if (CONF_DIR / p.relative_to(mine)).is_file())
+    if clashes:
+        raise ConfigError(f"{what}: {', '.join(clashes)} has the name of a config nma ships (conf/), which would be "
+                          f"read in its place: give yours a name of its own")
 
 
 def job_dir(hydra_cfg, multirun: bool) -> Path:
@@ -160,6 +173,7 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                         say(_os_error(exc), rank)
                         sys.exit(SYSTEM)
                     if rank == 0:  # before Hydra writes there (a sweep's jobs each take theirs as they start)
+                        cfg = _hold_dated_dir(cfg, overrides, config_name, args) or cfg
                         hold_run_dir(Path(cfg.hydra.run.dir), _run_dir_name(cfg))
                 first = first if first is not None else cfg.hydra
             except Exception as exc:  # composition and validation errors only: nothing has run
@@ -176,6 +190,29 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                  f"{message} (in {len(where)} of {len(jobs)} jobs, e.g. {where[0] or 'every job'})", rank)
         sys.exit(BAD_INPUT)
     return first
+
+
+def _hold_dated_dir(cfg, overrides: list[str], config_name: str, args):
+    """Where the run directory is the command's dated default (no hydra.run.dir given): the first of it,
+    <it>_2, <it>_3, ... that is empty and not in use, held, and named on the command line so that Hydra
+    writes there (its own clock may have moved on): two commands started in one second each get one.
+    The config with that directory, or None where the user named the directory."""
+    from omegaconf import OmegaConf
+
+    dated = "${now:" in str(OmegaConf.to_container(cfg.hydra.run, resolve=False).get("dir", ""))
+    if not dated or any(o.lstrip("+").startswith("hydra.run.dir=") for o in overrides):
+        return None
+    base = chosen = Path(cfg.hydra.run.dir)
+    for n in itertools.count(2):
+        if not (chosen.is_dir() and any(p.name != RUN_LOCK for p in chosen.iterdir())):
+            try:
+                hold_run_dir(chosen)
+                break
+            except ConfigError:  # another process holds it
+                pass
+        chosen = base.with_name(f"{base.name}_{n}")
+    sys.argv.append(f"hydra.run.dir={chosen}")
+    return compose(config_name, [*overrides, f"hydra.run.dir={chosen}"], args.config_dir, args.config_path)
 
 
 def _run_dir_name(cfg) -> str:
@@ -278,6 +315,21 @@ def hold_run_dir(run_dir: Path, what: str = "hydra.run.dir") -> None:
     lock.write(f"process {os.getpid()} on {socket.gethostname()} (since {time.strftime('%Y-%m-%d %H:%M:%S')})\n")
     lock.flush()
     _held[run_dir] = lock
+
+
+def holder_of(run_dir: Path) -> str | None:
+    """Which other process holds `run_dir` (hold_run_dir) now, or None."""
+    import fcntl
+
+    path = Path(run_dir).resolve() / RUN_LOCK
+    if path.parent in _held or not path.is_file():
+        return None
+    with open(path) as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return lock.read().strip() or "another process"
+    return None
 
 
 def _os_error(err: OSError) -> str:

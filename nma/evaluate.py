@@ -26,6 +26,7 @@ from omegaconf import DictConfig
 
 from . import cli
 from .config import CONF_DIR
+from .errors import SolverError
 from .schema import EvaluateConfig, build, register
 
 register()
@@ -128,6 +129,12 @@ def hydra_main(cfg: DictConfig) -> None:
             logging.getLogger("nma.evaluate").warning("at the %s fidelity: %s", which,
                                                       describe(record, record["invalid_samples"], record["fidelity"]["contact"]))
     print(json.dumps(cli.json_safe(brief), allow_nan=False), flush=True)
+    for which, record in (("training", t), ("evaluated", e)):
+        if record["failed_solves"] == result["samples"]:  # the metric is that of states nobody reached
+            with cli.exit_codes():
+                raise SolverError(f"every solve failed at the {which} fidelity ({record['failed_solves']} of "
+                                  f"{result['samples']}; {result['file']} says how far each got): the "
+                                  f"evaluation says nothing of the design")
 
 
 def main() -> None:

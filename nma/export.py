@@ -55,8 +55,9 @@ def validate(cfg: DictConfig) -> ExportConfig:
     return settings
 
 
-def trained_outline(run_dir) -> Outline:
-    """The outline of a run's newest checkpointed geometry, in the scene's length units."""
+def trained_outline(run_dir) -> tuple[Outline, Path]:
+    """The outline of a run's newest checkpointed geometry, in the scene's length units, and that
+    checkpoint's path."""
     from .runtime import configure_jax
 
     configure_jax()
@@ -65,9 +66,9 @@ def trained_outline(run_dir) -> Outline:
     from .train.runs import load_run
     from .schema import Fidelity
 
-    settings, params, _ = load_run(run_dir)
+    settings, params, path = load_run(run_dir)
     disc = discretise(scene_from_config(settings.scene), Fidelity(5, 2))  # the design nets themselves
-    return Outline.of(disc.mesh, disc.reference_points(_geometry(disc, params, run_dir)))
+    return Outline.of(disc.mesh, disc.reference_points(_geometry(disc, params, run_dir))), path
 
 
 def _geometry(disc, params, run_dir) -> dict:
@@ -180,7 +181,9 @@ def evaluation_states(run_dir) -> dict:
         logged = json.loads(metrics.read_text()) if metrics.is_file() else {}
     except (ValueError, UnicodeDecodeError):  # unreadable: solved again below, as without it
         logged = {}
-    if logged.get("step") == step and all(k in logged for k in keys):
+    counts = ("invalid_states", "checked_states", "failed_solves")  # a damaged file's are not taken on trust
+    if (isinstance(logged, dict) and logged.get("step") == step and all(k in logged for k in keys)
+            and all(type(logged[k]) is int and logged[k] >= 0 for k in counts)):
         found, source = {k: logged[k] for k in keys}, f"the run's final evaluation ({metrics.name})"
     else:
         from .evaluate import evaluate_at
@@ -256,7 +259,8 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
 
 
 def export(s: ExportConfig) -> dict:
-    outline = trained_outline(s.run).scaled(s.scale)
+    outline, checkpoint = trained_outline(s.run)
+    outline = outline.scaled(s.scale)
     path = Path(s.output) if s.output else cli.unused_path(Path(s.run) / "export" / f"design.{s.format}")
     path.parent.mkdir(parents=True, exist_ok=True)
     report = fabrication_report(outline, s.samples)
@@ -272,8 +276,8 @@ def export(s: ExportConfig) -> dict:
     if s.load_cases:
         report["load_cases"] = write_load_cases(s.run, s.load_fraction, path.parent / "load_cases.png", s.scale)
     fabrication = cli.unused_path(path.parent / "fabrication.json")  # an earlier export's report stays
-    result = {"file": str(path), "report": str(fabrication), "format": s.format, "units": "mm",
-              "scale_mm_per_unit": s.scale, **report}
+    result = {"file": str(path), "report": str(fabrication), "checkpoint": str(checkpoint), "format": s.format,
+              "units": "mm", "scale_mm_per_unit": s.scale, **report}
     fabrication.write_text(json.dumps(json_safe(result), indent=1, allow_nan=False))
     return result
 

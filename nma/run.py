@@ -18,6 +18,7 @@ from omegaconf import DictConfig
 
 from . import cli, signals, sweep
 from .config import CONF_DIR
+from .errors import TrainingError
 from .schema import TrainConfig, register
 from .schema.physics import describe_model, model_record
 from .sweep import FAILED_JOB
@@ -59,7 +60,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
                                        "no_actuation": at_rest, "fidelity": fidelity_record(sim.disc, s.fidelity),
                                        "model": model_record(s),
                                        "frozen_floor": None if floor is None else floor[0],
-                                       "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history)})
+                                       "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history),
+                                       "failed_steps": sum(h.get("failed_step", 0) for h in trainer.history)})
     r = evaluation.record
     failed, n = r["failed_solves"], len(r["per_sample"])
     over = f" over all {n} samples, {failed} of whose solves failed" if failed else f" over all {n} samples"
@@ -72,6 +74,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
              ", ".join(sorted(p.name for p in figures.iterdir())), metrics)
     if task.next_step(run_dir):
         log.info("next, from this run: %s", task.next_step(run_dir))
+    if failed == n:  # everything is written; the metric is that of states nobody reached
+        raise TrainingError(failed_solves(r))
     if failed:
         log.warning(failed_solves(r))
     if r["invalid_states"]:

@@ -265,7 +265,9 @@ class Simulator:
         # a concrete value is checked here (in numpy: inside a trace a jnp operation would be staged); a
         # traced one's solve ends at once with NONFINITE_INPUT
         if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
-            raise ValueError(f"equilibrium: {name} must be finite, got {np.asarray(value).tolist()}")
+            bad = np.argwhere(~np.isfinite(np.asarray(value)))
+            got = np.asarray(value).tolist() if value.size <= 8 else f"{len(bad)} entries that are not, the first at {bad[0].tolist()}"
+            raise ValueError(f"equilibrium: {name} must be finite, got {got}")
         if name == "mat" and not isinstance(value, jax.core.Tracer):
             for field, number in zip(("E", "nu"), np.asarray(value, dtype=np.float64)):
                 if not in_range(float(number), MATERIAL_RANGES[field]):
@@ -277,6 +279,9 @@ class Simulator:
         """Solves for a batch of actuations (n, n_act) on one geometry. Host backends hand the batch to
         their thread pool (each sample's Newton stops when it converges); a pure-JAX backend runs the
         batch in lockstep (parallel on a GPU)."""
+        if jnp.ndim(ds) != 2 or jnp.shape(ds)[1] != self.n_actuations:
+            raise ValueError(f"equilibrium_batch: ds must have shape (n, {self.n_actuations}), a row of actuations "
+                             f"per sample, got {jnp.shape(ds)}")
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
     # -- the solver's state across solves (warm starts): what a trainer asks of it -------------------------
@@ -376,4 +381,7 @@ class Simulator:
         Returns:
             The scene's `tracked` names, each mapped to its deformed [x, y]; differentiable in X and u.
         """
+        for name, value in (("X", X), ("u", u)):
+            if jnp.shape(value) != (self.disc.mesh.n_points, 2):
+                raise ValueError(f"tracked: {name} must have shape ({self.disc.mesh.n_points}, 2), got {jnp.shape(value)}")
         return self.disc.tracked_points(X + u)

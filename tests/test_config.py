@@ -6,6 +6,7 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
@@ -133,6 +134,51 @@ def test_a_misspelt_schema_in_a_config_file_is_named_with_the_schemas_there_are(
                                 f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
     assert code == 2 and ("the schema translaton_schema in a task file's defaults list is unknown; choose one of "
                           "['digital_mnist_schema',") in err and "'translation_schema'" in err, err
+
+
+def test_a_misspelt_schema_name_and_a_shadowing_search_path_are_refused(tmp_path, monkeypatch, capsys):
+    """A defaults entry that misspells a schema without its _schema ending (spec_shema) is named with the
+    schemas there are; a hydra.searchpath directory holding a shipped config's name is refused as
+    --config-dir's is (Hydra would read the shipped one)."""
+    (tmp_path / "mine" / "task").mkdir(parents=True)
+    (tmp_path / "mine" / "task" / "mine.yaml").write_text("defaults:\n  - spec_shema\n  - _self_\n")
+    code, err = call(run.main, ["--config-dir", str(tmp_path / "mine"), "task=mine", "scene=strip",
+                                f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch, capsys)
+    assert code == 2 and "the schema spec_shema in a task file's defaults list is unknown; choose one of" in err, err
+    (tmp_path / "path" / "task").mkdir(parents=True)
+    (tmp_path / "path" / "task" / "strip_spread.yaml").write_text("defaults: [spec_schema, _self_]\nname: strip\n")
+    code, err = call(run.main, [f"hydra.searchpath=[file://{tmp_path / 'path'}]", "task=strip_spread", "scene=strip",
+                                f"hydra.run.dir={tmp_path / 'run2'}"], monkeypatch, capsys)
+    assert code == 2 and "task/strip_spread.yaml has the name of a config nma ships (conf/)" in err, err
+
+
+def test_a_run_never_takes_another_commands_directory(tmp_path):
+    """nma.run pointed at nma.simulate's output would replace its record (.hydra/config.yaml): refused."""
+    from nma.train.runs import check_run_dir
+
+    (tmp_path / "sim" / ".hydra").mkdir(parents=True)
+    (tmp_path / "sim" / ".hydra" / "config.yaml").write_text("scene: {name: translation}\nactuation: [1.0, 0.0]\n")
+    with pytest.raises(ConfigError, match="holds another command's output"):
+        check_run_dir(tmp_path / "sim", "false")
+
+
+def test_two_commands_in_one_second_get_a_dated_directory_each(tmp_path, monkeypatch):
+    """The dated default directory that holds files already (a command started in the same second) is not
+    shared: the next free <dir>_2 is taken, and named on the command line so that Hydra writes there."""
+    import argparse
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", ["nma.simulate"])
+    args = argparse.Namespace(config_dir=None, config_path=None)
+    cfg = cli.compose("simulate", [])
+    taken = Path(cfg.hydra.run.dir)
+    taken.mkdir(parents=True)
+    (taken / "result.json").write_text("{}")
+    cfg = cli._hold_dated_dir(cfg, [], "simulate", args)
+    assert Path(cfg.hydra.run.dir) == taken.with_name(taken.name + "_2")
+    assert sys.argv[-1] == f"hydra.run.dir={taken.with_name(taken.name + '_2')}"
+    assert cli._hold_dated_dir(cli.compose("simulate", ["hydra.run.dir=mine"]), ["hydra.run.dir=mine"],
+                               "simulate", args) is None  # a directory the user named is theirs
 
 
 def test_simulate_never_writes_into_a_directory_that_holds_files(tmp_path, monkeypatch, capsys):

@@ -174,3 +174,39 @@ def test_help_lists_the_groups_a_command_takes(command, taken, refused):
         assert f"\n{group}: {', '.join(options(group))}\n" in out
     for line in refused:
         assert f"\n{line}" not in out
+
+
+def test_a_run_still_training_is_not_evaluated_or_exported(tmp_path, translation_run):
+    """While another process holds a run's directory (it is training: its newest checkpoint changes), load_run
+    (nma.evaluate's and nma.export's) refuses it, naming the process, rather than read a checkpoint that
+    the next one replaces."""
+    import subprocess
+    import sys
+
+    from nma.train.runs import load_run
+
+    d = copy_run(translation_run, tmp_path / "run")
+    hold = ("import fcntl, sys, time; f = open(sys.argv[1], 'a+'); fcntl.flock(f, fcntl.LOCK_EX); "
+            "f.write('process 4242 on somewhere'); f.flush(); print('held', flush=True); time.sleep(60)")
+    holder = subprocess.Popen([sys.executable, "-c", hold, str(d / ".lock")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(ConfigError, match=r"is still training \((.|\n)*process 4242 on somewhere"):
+            load_run(d)
+    finally:
+        holder.kill()
+        holder.wait()
+    load_run(d)  # the lock goes with its process
+
+
+def test_an_evaluation_whose_every_solve_fails_exits_1_with_valid_json(tmp_path, translation_run):
+    """Every solve failed (a Newton given one iteration): the JSON is written and valid, and the exit
+    status says the evaluation says nothing (1), naming the file."""
+    import subprocess
+    import sys
+
+    d = copy_run(translation_run, tmp_path / "run")
+    done = subprocess.run([sys.executable, "-m", "nma.evaluate", f"run={d}", "fidelity=fast", "solver=auto",
+                           "solver.max_iters=1", "eval_subset=2"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and "every solve failed at the training fidelity (2 of 2;" in done.stderr, done.stderr
+    assert json.loads(done.stdout)["evaluated_failed_solves"] == 2 and "Traceback" not in done.stderr

@@ -182,3 +182,25 @@ def test_stl_export_reports_the_mesh_volume(trained_run, tmp_path):
     report = export(ExportConfig(run=str(trained_run), format="stl", thickness=2.0, samples=8,
                                  output=str(tmp_path / "d.stl"), states=False))
     assert report["volume"] == pytest.approx(2.0 * report["material_area"], rel=1e-3)
+
+
+def test_export_never_replaces_a_file_and_reads_a_damaged_metrics_file_as_absent(tmp_path, translation_run):
+    """output= naming a file that exists, or lying below a file, is refused before any work; a metrics.json
+    that is not the run's record (a list, counts that are not counts) is not trusted: the states are
+    solved again, and the report names the checkpoint exported."""
+    from conftest import copy_run
+    from nma.errors import ConfigError
+    from nma.export import evaluation_states
+    from nma.schema import ExportConfig, build
+
+    mine = tmp_path / "mine.svg"
+    mine.write_text("precious")
+    with pytest.raises(ConfigError, match="output names a file that exists"):
+        build(ExportConfig, {"run": str(translation_run), "output": str(mine)})
+    with pytest.raises(ConfigError, match="lies below .*mine.svg, which is a file"):
+        build(ExportConfig, {"run": str(translation_run), "output": str(mine / "x.dxf")})
+    d = copy_run(translation_run, tmp_path / "run")
+    logged = json.loads((d / "metrics.json").read_text())
+    for damaged in ([1, 2], {**logged, "invalid_states": "many", "checked_states": None}):
+        (d / "metrics.json").write_text(json.dumps(damaged))
+        assert evaluation_states(d)["source"].startswith("solved again")

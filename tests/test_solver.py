@@ -269,6 +269,14 @@ def test_the_front_door_names_a_wrong_argument_and_takes_other_precisions(simula
         sim.equilibrium(X, d, jnp.array([0.07, np.nan]))
     traced = jax.jit(sim.equilibrium)(X, jnp.array([np.nan, 0.0]), mat)  # under jit: the status says it
     assert int(traced.info.status) == Status.NONFINITE_INPUT
+    assert np.all(np.asarray(traced.u) == 0.0)  # nothing solved: the state is rest, the last equilibrium
+    with pytest.raises(ValueError, match=r"X must be finite, got 1 entries that are not, the first at \[3, 1\]$"):
+        sim.equilibrium(X.at[3, 1].set(np.nan), d, mat)  # a large argument's message names where, not all of it
+    with pytest.raises(ValueError, match=re.escape("equilibrium_batch: ds must have shape (n, 2), a row of "
+                                                   "actuations per sample, got (2,)")):
+        sim.equilibrium_batch(X, d, mat)
+    with pytest.raises(ValueError, match=re.escape(f"tracked: u must have shape ({X.shape[0]}, 2), got (5, 2)")):
+        sim.tracked(X, jnp.zeros((5, 2)))
 
 
 def test_the_eager_door_checks_the_design_and_material_naming_them(simulator):
@@ -310,6 +318,7 @@ def test_from_config_takes_a_presets_name():
     assert sim.disc.mesh.fidelity.ctrl_per_patch == fast.ctrl_per_patch and sim.disc.spec.name == "strip"
     with pytest.raises(ConfigError, match="fidelity='quick' is unknown; choose one of"):
         Simulator.from_config("strip", "quick")
+    assert Simulator.from_config("strip", "fast", contact="on").disc.contact is not None  # every group by name
 
 
 @pytest.mark.parametrize("linear", ["superlu", "dense"])

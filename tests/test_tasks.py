@@ -128,6 +128,9 @@ def test_a_pore_area_goal_is_exact_and_its_cases_or_dataset_are_the_evaluation_s
     rows.write_text("-1.5\n")
     with pytest.raises(ConfigError, match=r"task.dataset \(row 1 of .*\) holds relative changes"):
         spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(rows)), sim)
+    rows.write_text("0.5\n1e308\n")  # finite, but no set-up reaches it (and a loss would overflow)
+    with pytest.raises(ConfigError, match=r"task.dataset .* asks for 1e\+308: a descriptor's entries must be within"):
+        spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(rows)), sim)
     with pytest.raises(ConfigError, match="task.dataset .*missing.csv cannot be read"):
         spec(SpecConfig(name="strip", goal="pore_area", pore=[1, 3], dataset=str(tmp_path / "missing.csv")), sim)
 

@@ -303,3 +303,15 @@ def test_a_step_whose_whole_batch_fails_is_skipped_counted_and_stops_the_run_onl
     with pytest.raises(SolverError, match=r"step 4: no sample of the batch converged in 2 steps in a row "
                                           r"\(trainer.max_failed_steps\).*the iteration limit.*Give Newton more room"):
         trainer.step()
+
+
+def test_a_run_whose_every_final_solve_fails_ends_in_an_error_after_writing_everything(tmp_path):
+    """A run that trained nothing (every solve failed: a Newton of one iteration) writes its checkpoint and
+    metrics.json, then ends in a TrainingError (exit 1) that says why: its metric is not a result."""
+    from conftest import train_in_process
+    from nma.errors import TrainingError
+
+    with pytest.raises(TrainingError, match=r"25 of the final evaluation's 25 solves failed .*none converged"):
+        train_in_process(tmp_path, "task=translation", "debug=default", "solver.max_iters=1", "logger=none")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["failed_solves"] == 25 and metrics["failed_steps"] == 2

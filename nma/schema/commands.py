@@ -95,6 +95,13 @@ class ExportConfig(Schema):
             if os.path.isdir(self.output):
                 self.fail("output", f"is a directory; name the file to write (e.g. "
                                     f"{os.path.join(self.output, 'design.' + (given or 'svg'))})", self.output)
+            if os.path.lexists(self.output):  # nma.export never replaces a file
+                self.fail("output", "names a file that exists; name another (or move it aside)", self.output)
+            parent = os.path.dirname(os.path.abspath(self.output))
+            while parent and not os.path.exists(parent):
+                parent = os.path.dirname(parent)
+            if not os.path.isdir(parent):
+                self.fail("output", f"lies below {parent}, which is a file, not a directory", self.output)
             suffix = self.output.rpartition(".")[2].lower() if "." in self.output.rpartition("/")[2] else ""
             if suffix in self.FORMATS and given not in (None, suffix):
                 self.fail("format", f"is {given} but output={self.output} names a .{suffix} file; give one of them, "

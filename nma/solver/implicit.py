@@ -42,7 +42,8 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
         # a failed solve's state is at the load it reached (a failed solve is a cold one: its load path
         # scales the prescribed displacements from zero)
         reached = jnp.where(info.status == Status.CONVERGED, 1.0, info.load)
-        return Equilibrium(eqs.full(u_free, eqs.A @ (reached * d)), info)
+        # where nothing was solved (load 0) the state is rest, whatever d holds (a non-finite d)
+        return Equilibrium(eqs.full(u_free, eqs.A @ jnp.where(reached > 0, reached * d, 0.0)), info)
 
     return equilibrium, warm
 

@@ -36,6 +36,9 @@ from .base import Task
 from .schemas import SpecTask as SpecConfig
 
 PER_SPAN = 4  # boundary points per knot span of a pore's wall: even, so every span's midpoint is one
+# a descriptor entry past this (a length, a relative change, an angle or a force) is beyond any set-up a
+# scene can make; near float64's limit it would overflow once squared in a loss
+DESCRIPTOR_MAX = 1e6
 
 
 def descriptors(cfg: SpecConfig) -> np.ndarray | None:
@@ -104,10 +107,13 @@ class SpecTask(Task):
         else:
             self._eval = jnp.asarray(self.cases)
             self.sweep_fps = 1.0  # separate cases, not a continuous path
+        where = "task.cases" if cfg.cases else f"task.dataset {cfg.dataset}" if cfg.dataset else "task.low/high"
+        if float(jnp.max(jnp.abs(self._eval))) > DESCRIPTOR_MAX:
+            raise ConfigError(f"{where} asks for {float(jnp.max(jnp.abs(self._eval))):g}: a descriptor's entries must "
+                              f"be within [-{DESCRIPTOR_MAX:g}, {DESCRIPTOR_MAX:g}], beyond any set-up a scene can make")
         if self.goal == "distance":  # a target distance below zero is no distance
             apart, lowest = float(jnp.linalg.norm(self.rest[1] - self.rest[0])), float(jnp.min(self._eval))
             if apart + lowest <= 0:
-                where = "task.cases" if cfg.cases else f"task.dataset {cfg.dataset}" if cfg.dataset else "task.low"
                 raise ConfigError(f"{where} asks for a distance change of {lowest:g}, but {', '.join(cfg.points)} "
                                   f"are {apart:g} apart at rest: each change must be above {-apart:g}")
         first, last = (self.point_names or ["", ""])[0], (self.point_names or ["", ""])[-1]

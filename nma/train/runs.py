@@ -46,6 +46,12 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     saved = run / ".hydra" / "config.yaml"
     if not saved.is_file():
         raise ConfigError(f"run={run} is not a training run directory (it has no .hydra/config.yaml)")
+    from ..cli import holder_of
+
+    holder = holder_of(run)
+    if holder:  # its newest checkpoint would change while it is read, and again after
+        raise ConfigError(f"run={run} is still training ({holder}): wait for it to end, or copy the run "
+                          f"directory and name the copy")
     try:
         cfg = OmegaConf.load(saved)
     except Exception as exc:  # YAML or OmegaConf errors of a damaged file
@@ -100,6 +106,10 @@ def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> No
     from ..errors import ConfigError
     from . import checkpoint
 
+    saved = run_dir / ".hydra" / "config.yaml"
+    if saved.is_file() and "task" not in _top_keys(saved):
+        raise ConfigError(f"{what}={run_dir} holds another command's output ({saved.relative_to(run_dir)} is not a "
+                          f"training run's): a run there would replace its record; give this run another directory")
     held = [p.name for p in (run_dir / "checkpoints", run_dir / "metrics.json")
             if p.exists() and (p.is_file() or checkpoint.latest(p))]
     elsewhere = "start the new run in another directory (without hydra.run.dir or hydra.sweep.dir each run gets a new one)"
@@ -109,6 +119,17 @@ def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> No
     if resume != "false" and held == ["metrics.json"]:  # a finished run whose checkpoints are gone
         raise ConfigError(f"{what}={run_dir} holds a run's metrics.json but no checkpoint to continue from "
                           f"(checkpoints/step_*.msgpack): trainer.resume={resume} would start it again; {elsewhere}")
+
+
+def _top_keys(path: Path) -> list[str]:
+    """The top-level keys of a YAML file (none where it does not read as a mapping)."""
+    import yaml
+
+    try:
+        body = yaml.safe_load(path.read_text())
+    except (OSError, ValueError, yaml.YAMLError):
+        return []
+    return list(body) if isinstance(body, dict) else []
 
 
 def check_init_from(path: Path, s: TrainConfig) -> None:
