@@ -89,11 +89,13 @@ def summarise_digital_mnist(out: Path):
     print((out / "comparison.md").read_text())
 
 
-def reevaluate(out: Path, run: str, extra: list[str] = ()) -> None:
+def reevaluate(out: Path, run: str, extra: list[str] = (), solve: bool = True) -> None:
     """The compared design re-solved at 14 x 5 (nma.evaluate) -> out/reevaluated.json: the metric where the
     model is finer than any it trained at.  An evaluation nma.evaluate wrote there already is read, not
-    solved again."""
+    solved again (and with solve=False, --summarise, none is solved)."""
     done = sorted((out / run / "evaluate").glob("14x5*.json"))
+    if not done and not solve:
+        return
     if not done:
         cmd = [sys.executable, "-m", "nma.evaluate", f"run={out / run}", "fidelity.ctrl_per_patch=14",
                "fidelity.quad_points=5", *extra]
@@ -113,8 +115,13 @@ def publish(name: str, out: Path, summary: dict, figures: list[Path]) -> None:
         print(f"{out}: no stamp.json (runs from before results were stamped): results/{name} not written")
         return
     again = out / "reevaluated.json"
-    summary = {**summary, **({"reevaluated": json.loads(again.read_text())} if again.is_file() else {})}
-    results.write(name, summary, (out / "comparison.md").read_text(), figures, json.loads((out / "stamp.json").read_text()))
+    report = (out / "comparison.md").read_text()
+    if again.is_file():
+        r = json.loads(again.read_text())
+        summary = {**summary, "reevaluated": r}
+        report += (f"\nThe compared design ({r['run']}) re-evaluated at {r['fidelity']}: {r['value']:.4g} over "
+                   f"{r['samples']} samples, {r['failed_solves']} failed solves, {r['invalid_states']} states not physical.\n")
+    results.write(name, summary, report, figures, json.loads((out / "stamp.json").read_text()))
 
 
 def train(name: str, run_dir: Path, overrides: list[str]) -> dict:
@@ -158,6 +165,8 @@ def main():
         (out / "seconds.json").write_text(json.dumps(seconds))
         (out / "stamp.json").write_text(json.dumps(results.stamp(COMMAND, time.perf_counter() - t0)))
         reevaluate(out, later[-1][1] if later else "joint")
+    else:
+        reevaluate(out, later[-1][1] if later else "joint", solve=False)
     summarise(out, args.name, [run for _, run in later])
 
 
