@@ -73,13 +73,16 @@ def _row(name: str, label: str) -> str:
     minutes = f"{r['stamp']['wall_seconds'] / 60:.1f} min"
     fine = r.get("reevaluated")
     if name == "digital_mnist":
-        again = f" ({fine['value']:.3f} on {fine['samples']})" if fine else ""
+        again = f" ({fine['value']:.3f} on {fine['samples']})" if fine else ""  # nma.evaluate's, where run
         return f"| {label} | held-out digits shown exactly | {r['digit_exact_match']['finetune']:.3f}{again} | | {minutes} |"
-    again = f" ({fine['value']:.3g})" if fine else ""
+    again = ""
+    if fine:  # the states a finer model finds not physical are said beside its value
+        unphysical = f"; {fine['invalid_states']} of {fine['samples']} not physical" if fine["invalid_states"] else ""
+        again = f" ({fine['value']:#.3g}{unphysical})"
     unit = "deg" if r["unit"].startswith("deg") else ""
-    value = lambda v: f"{v:.3g}{' ' + unit if unit else ''}"  # noqa: E731
+    value = lambda v: f"{v:#.3g}{' ' + unit if unit else ''}"  # noqa: E731
     metric = {"mean_pointer_error": "mean pointer error (cell = 5)", "mean_angle_error_deg": "mean angle error",
-              "mean_shape_error": "shape error (mean pore radii)"}.get(r["metric"], r["metric"])
+              "shape_error": "shape error (mean pore radii)"}.get(r["metric"], r["metric"])
     return f"| {label} | {metric} | {value(r['joint'])}{again} | {value(r['baseline'])} | {minutes} |"
 
 
