@@ -212,6 +212,8 @@ def _hold_dated_dir(cfg, overrides: list[str], config_name: str, args):
                 pass
         chosen = base.with_name(f"{base.name}_{n}")
     sys.argv.append(f"hydra.run.dir={chosen}")
+    if chosen == base:  # the config says this directory already: no second composition
+        return cfg
     return compose(config_name, [*overrides, f"hydra.run.dir={chosen}"], args.config_dir, args.config_path)
 
 
