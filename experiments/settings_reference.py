@@ -16,7 +16,7 @@ import sys
 import typing
 from pathlib import Path
 
-from nma.schema import (ContactConfig, EvaluateConfig, ExportConfig, Fidelity, LoggerConfig, MaterialConfig,
+from nma.schema import (ContactConfig, EvaluateConfig, ExportConfig, Fidelity, LoggerConfig, MaterialConfig, PartConfig,
                         ModelConfig, OptimConfig, SceneConfig, SolverConfig, TrainerConfig)
 from nma.schema.commands import OutputConfig
 from nma.settings import Schema
@@ -31,7 +31,7 @@ range is refused before any work, naming the setting.  Generated from the schema
 nma/tasks/schemas.py) by `python experiments/settings_reference.py`; do not edit by hand.
 """
 GROUPS = [  # (heading, prefix, schema): the training run's groups, then the other commands' own
-    ("Material", "material", MaterialConfig), ("Fidelity", "fidelity", Fidelity),
+    ("Material", "material", MaterialConfig), ("Part", "part", PartConfig), ("Fidelity", "fidelity", Fidelity),
     ("Contact", "contact", ContactConfig), ("Solver", "solver", SolverConfig), ("Model", "model", ModelConfig),
     ("Optimiser", "optim", OptimConfig), ("Trainer", "trainer", TrainerConfig), ("Logger", "logger", LoggerConfig),
     ("Scene", "scene", SceneConfig),
@@ -86,7 +86,7 @@ def rows(prefix: str, schema: type) -> list[str]:
         if isinstance(tp, type) and issubclass(tp, Schema):
             nested.append((key, tp))
             continue
-        allowed = (f"[{', '.join(f.metadata['choices'])}]" if "choices" in f.metadata
+        allowed = (f"[{', '.join('null' if c is None else c for c in f.metadata['choices'])}]" if "choices" in f.metadata
                    else f.metadata.get("range", ""))
         meaning = f.metadata.get("doc") or notes.get(f.name, "") or inherited(schema, f.name)
         cells = [f"`{key}`", type_name(tp), f"`{default_of(f)!r}`".replace("|", "\\|"), allowed.replace("|", "\\|"),

@@ -15,7 +15,7 @@ from .errors import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 GROUP_SCHEMAS = {"scene": schema.SceneConfig, "fidelity": schema.Fidelity, "solver": schema.SolverConfig,
-                 "contact": schema.ContactConfig,
+                 "contact": schema.ContactConfig, "material": schema.MaterialConfig,
                  "model": schema.ModelConfig, "optim": schema.OptimConfig, "trainer": schema.TrainerConfig,
                  "logger": schema.LoggerConfig}
 

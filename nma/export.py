@@ -3,7 +3,8 @@
     python -m nma.export run=outputs/runs/translation/<date>_<time> format=svg|dxf|stl [scale=2] [thickness=10]
 
 Writes <run>/export/design.<format> (or `output=`) and fabrication.json beside it, and prints the report
-as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per length unit of the scene.
+as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per length unit of the scene
+(the run's part.scale where it states one).
 - svg: the outer boundary and every pore as one path of quadratic Bezier segments, exactly the design's
   curves (even-odd fill), the page sized in millimetres;
 - dxf: one degree-2 SPLINE per closed curve, exactly the design's B-splines, drawing units millimetres;
@@ -20,8 +21,10 @@ move and each state's validity in the report.
 from __future__ import annotations
 
 import json
+import dataclasses
 import logging
 import sys
+from dataclasses import replace
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -55,9 +58,9 @@ def validate(cfg: DictConfig) -> ExportConfig:
     return settings
 
 
-def trained_outline(run_dir) -> tuple[Outline, Path]:
-    """The outline of a run's newest checkpointed geometry, in the scene's length units, and that
-    checkpoint's path."""
+def trained_outline(run_dir) -> tuple[Outline, Path, object]:
+    """The outline of a run's newest checkpointed geometry, in the scene's length units, that
+    checkpoint's path and the run's settings."""
     from .runtime import configure_jax
 
     configure_jax()
@@ -68,7 +71,7 @@ def trained_outline(run_dir) -> tuple[Outline, Path]:
 
     settings, params, path = load_run(run_dir)
     disc = discretise(scene_from_config(settings.scene), Fidelity(5, 2))  # the design nets themselves
-    return Outline.of(disc.mesh, disc.reference_points(_geometry(disc, params, run_dir))), path
+    return Outline.of(disc.mesh, disc.reference_points(_geometry(disc, params, run_dir))), path, settings
 
 
 def _geometry(disc, params, run_dir) -> dict:
@@ -201,26 +204,29 @@ def evaluation_states(run_dir) -> dict:
 LOAD_CASES = {"tension": (1.0, -1.0), "compression": (-1.0, 1.0), "one-sided compression": (0.0, 1.0)}
 
 
-def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict:
+def write_load_cases(run_dir, fraction: float, path: Path, scale: float, thickness: float, material=None) -> dict:
     """The trained translation part deformed under LOAD_CASES (actuation fraction x d_max), each outline
     drawn over the undeformed part (the picture a maker compares with the printed part under the same
-    loads), in millimetres; per case the pointer's displacement and whether the state is physical."""
+    loads), in millimetres; per case the pointer's displacement, the force each actuation pushes with (in N
+    for a material with a physical unit: nma.units) and whether the state is physical.  `material` (a
+    MaterialConfig): solved in it, the part as it is made, in place of the run's."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from .geometry.validity import StateChecker
-    from .mechanics.material import material
     from .train.runs import load_run
     from .simulator import Simulator
+    from .units import Units
 
-    settings, params, _ = load_run(run_dir)
+    settings, params, _ = load_run(run_dir, None if material is None else dataclasses.asdict(material))
     sim = Simulator.from_settings(settings)
+    units = Units.of(replace(settings.part, scale=scale, thickness=thickness), settings.material)
     geom = _geometry(sim.disc, params, run_dir)
     X = np.asarray(sim.reference_points(geom))
     checker = StateChecker(sim.disc.mesh, X)
-    mat = material(settings.material.E, settings.material.nu)
+    mat = settings.material.params()
     rest = [scale * p for p in Outline.deformed(checker.loops, X, sim.disc.mesh.fidelity.grading).polylines(8)]
     pointer0 = np.asarray(sim.tracked(X, np.zeros_like(X))["pointer"])
     fig, axes = plt.subplots(1, len(LOAD_CASES), figsize=(4.2 * len(LOAD_CASES), 4.6), sharex=True, sharey=True)
@@ -236,30 +242,37 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float) -> dict
             continue
         state = checker.check(eq.u)
         moved = np.asarray(sim.tracked(X, eq.u)["pointer"]) - pointer0
+        forces = np.asarray(sim.actuation_forces(X, eq.u, mat)).tolist()
         cases[name] = {"actuation": d.tolist(), "converged": True, "pointer_displacement_mm": (scale * moved).tolist(),
+                       "actuation_forces": forces, **units.physical("actuation_forces", forces, "force"),
                        "valid": state.valid, "problems": state.problems()}
         for line in Outline.deformed(checker.loops, X + np.asarray(eq.u), sim.disc.mesh.fidelity.grading).polylines(8):
             ax.plot(*np.vstack([scale * line, scale * line[:1]]).T, color="#c0392b" if not state.valid else "#1f3fbf",
                     lw=1.0)
         ax.annotate("", scale * (pointer0 + moved), scale * pointer0,
                     arrowprops=dict(arrowstyle="->", color="#2ca02c", lw=1.5))
+        pushes = ("; pushes " + ", ".join(f"{f:+.3g} N" for f in cases[name]["actuation_forces_N"])
+                  if "actuation_forces_N" in cases[name] else "")
         ax.set_title(f"{name}: d = {np.round(d, 2).tolist()}\npointer moves "
-                     f"({scale * moved[0]:+.2f}, {scale * moved[1]:+.2f}) mm"
+                     f"({scale * moved[0]:+.2f}, {scale * moved[1]:+.2f}) mm{pushes}"
                      + ("" if state.valid else ", NOT PHYSICAL"), fontsize=9)
     for ax in axes:
         ax.set_aspect("equal")
         ax.set_xlabel("x [mm]")
     axes[0].set_ylabel("y [mm]")
-    fig.suptitle("the learned part (grey: undeformed) under the paper's load cases (blue: deformed; red: deformed "
-                 "but not a physical object; green: the pointer's move)", fontsize=10)
+    made = "" if material is None else f", made of {material.name or material.law} (nu {material.nu:g})"
+    fig.suptitle(f"the learned part{made} (grey: undeformed) under the paper's load cases (blue: deformed; red: "
+                 "deformed but not a physical object; green: the pointer's move)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
-    return {"file": str(path), "fraction_of_d_max": fraction, "cases": cases}
+    return {"file": str(path), "fraction_of_d_max": fraction, "material": settings.material.record(),
+            "units": units.record(), "cases": cases}
 
 
 def export(s: ExportConfig) -> dict:
-    outline, checkpoint = trained_outline(s.run)
+    outline, checkpoint, run = trained_outline(s.run)
+    s = replace(s, scale=s.scale or run.part.scale or 1.0, thickness=s.thickness or run.part.thickness or 10.0)
     outline = outline.scaled(s.scale)
     path = Path(s.output) if s.output else cli.unused_path(Path(s.run) / "export" / f"design.{s.format}")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -274,7 +287,8 @@ def export(s: ExportConfig) -> dict:
     if s.states:
         report["evaluation_states"] = evaluation_states(s.run)
     if s.load_cases:
-        report["load_cases"] = write_load_cases(s.run, s.load_fraction, path.parent / "load_cases.png", s.scale)
+        report["load_cases"] = write_load_cases(s.run, s.load_fraction, path.parent / "load_cases.png", s.scale,
+                                               s.thickness, s.material)
     fabrication = cli.unused_path(path.parent / "fabrication.json")  # an earlier export's report stays
     result = {"file": str(path), "report": str(fabrication), "checkpoint": str(checkpoint), "format": s.format,
               "units": "mm", "scale_mm_per_unit": s.scale, **report}

@@ -33,6 +33,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     """Train, write the run's figures, fields and metrics.json; the final evaluation's record."""
     from .train import artefacts
     from .train.mpi import World
+    from .units import Units, run_record
 
     world = World()
     trainer = make_trainer(s, run_dir, config, world)
@@ -50,7 +51,8 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     logger.finish()
     if not world.is_root:
         return {}
-    figures = artefacts.write_figures(run_dir / "figures", trainer, evaluation, X_before, s.trainer.animation_frames)
+    figures = artefacts.write_figures(run_dir / "figures", trainer, evaluation, X_before, s.trainer.animation_frames,
+                                      s.part.scale)
     if s.trainer.fields == "final":
         artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
     at_rest, floor = task.rest_metric(sim, trainer.mat), task.frozen_floor()
@@ -61,8 +63,14 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
                                        "model": model_record(s),
                                        "frozen_floor": None if floor is None else floor[0],
                                        "skipped_updates": sum(h.get("skipped_update", 0) for h in trainer.history),
-                                       "failed_steps": sum(h.get("failed_step", 0) for h in trainer.history)})
+                                       "failed_steps": sum(h.get("failed_step", 0) for h in trainer.history),
+                                       **run_record(Units.of(s.part, s.material), sim, trainer.mat, task, evaluation)})
     r = evaluation.record
+    stretches = json.loads(metrics.read_text()).get("stretch_range")
+    if stretches and not s.material.stretches[0] <= stretches[0] <= stretches[1] <= s.material.stretches[1]:
+        log.warning("the evaluation's states stretch the material over principal stretches %.3g to %.3g, beyond "
+                    "material.stretches=%s where its law was checked stable (and a fitted law has its data)",
+                    *stretches, s.material.stretches)
     failed, n = r["failed_solves"], len(r["per_sample"])
     over = f" over all {n} samples, {failed} of whose solves failed" if failed else f" over all {n} samples"
     log.info("final %s = %.4g %s%s after %d steps; %sthe initial design at rest, no actuation: %.4g",

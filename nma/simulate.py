@@ -53,19 +53,20 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .io.fields import write_fields
-    from .mechanics.material import material
     from .simulator import Simulator
+    from .units import Units
     from .viz.plot import save_reference_and_deformed
 
     spec = scene_from_config(s.scene)
-    mat = material(s.material.E, s.material.nu)
+    mat = s.material.params()
+    units = Units.of(s.part, s.material)
     t0 = time.perf_counter()
     sim = Simulator.from_settings(s)
     build_seconds = time.perf_counter() - t0
     d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
     result = {"scene": spec.name, "dofs": sim.disc.boundary.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
-              "material": {"E": s.material.E, "nu": s.material.nu, "formulation": s.material.formulation},
-              "model": model_record(s)}
+              "material": s.material.record(),
+              "model": model_record(s), "units": units.record()}
     params = sim.init_params()
     t0 = time.perf_counter()
     eq = sim.solve(params, d, mat, throw=False)
@@ -84,8 +85,11 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
         log.warning("the equilibrium is not a physical object: %s", "; ".join(state.problems()))
     h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, X, eq.u, s.output.samples,
                             attrs={"actuation": np.asarray(d), "energy": energy})
+    forces = np.asarray(sim.actuation_forces(X, eq.u, mat)).tolist()
     result.update({
-        "tracked": tracked, "energy": energy, "load_steps": int(info.load_steps),
+        "tracked": tracked, **({"tracked_mm": {k: units.convert(v, "length") for k, v in tracked.items()}}
+                               if units.mm_per_unit is not None else {}),
+        "actuation_forces": forces, **units.physical("actuation_forces", forces, "force"), "energy": energy, "load_steps": int(info.load_steps),
         "newton_iterations": int(info.iterations), "converged": True, "valid": state.valid,
         "validity": {**state.record(), "resolution": checker.resolution},
         "residual": float(info.residual), "tolerance": float(info.tolerance),

@@ -19,10 +19,10 @@ import numpy as np
 
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
-from .schema import ContactConfig, Fidelity, SolverConfig, build, scene_config, scene_from_config
+from .mechanics.material import Material
+from .schema import ContactConfig, Fidelity, MaterialConfig, SolverConfig, build, scene_config, scene_from_config
+from .schema.physics import material_model
 from .mechanics.energy import quadrature, strain_energy
-from .mechanics.options import MATERIAL_RANGES
-from .settings import in_range
 from .runtime import available_cores
 from .solver.equations import Equations, tangents_at
 from .solver.implicit import make_equilibrium
@@ -82,6 +82,7 @@ class Simulator:
                  workers: int = 0):
         self.disc = disc
         self.options = options
+        self.material_params = None  # the material's parameter array, where a config named it (from_config)
         self.backend = make_backend(linear, disc)
         if options.escape_saddles and not getattr(self.backend, "reports_inertia", False):
             raise ConfigError(f"solver.escape_saddles needs a linear solver that reports the inertia of its "
@@ -110,12 +111,15 @@ class Simulator:
         Returns:
             The simulator of those settings.
         """
-        return cls._build(s.scene, s.fidelity, s.contact, s.material.formulation, s.solver, workers)
+        sim = cls._build(s.scene, s.fidelity, s.contact, s.material.model(), s.solver, workers)
+        sim.material_params = s.material.params()
+        return sim
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
-                    formulation: str = "displacement") -> "Simulator":
+                    formulation: str = "displacement", material: Mapping[str, Any] | str | None = None
+                    ) -> "Simulator":
         """A simulator from plain mappings, without Hydra: each checked as the commands check it, the
         fidelity and contact resolved for the scene.
 
@@ -128,7 +132,10 @@ class Simulator:
             solver: Newton's and the linear solver's settings; None: the defaults.
             contact: Contact between pore walls; None: none. `{"enabled": None}` follows the scene, as
                 the commands' `contact=auto` does.
-            formulation: `displacement` or `mixed` (locking-free as nu -> 0.5).
+            formulation: `displacement`, `mixed` (locking-free as nu -> 0.5) or `auto` (by nu).
+            material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's name,
+                `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not auto,
+                replaces `formulation`.  `sim.material_params` is its parameter array.
 
         Returns:
             The simulator.
@@ -150,11 +157,18 @@ class Simulator:
             ("scene", "scene", scene), ("fidelity", "fidelity", fidelity), ("solver", "solver", solver),
             ("contact", "contact", contact)))
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
-        return cls._build(scene, resolve(build(Fidelity, fidelity), scene), contact.resolved(scene), formulation, solver)
+        material = _settings("material", "material", material) or {}
+        material = build(MaterialConfig, dataclasses.asdict(material) if dataclasses.is_dataclass(material) else material)
+        for auto in (formulation, material_model(material.nu).formulation):  # an auto formulation: by nu
+            material = dataclasses.replace(material, formulation=auto) if material.formulation == "auto" else material
+        sim = cls._build(scene, resolve(build(Fidelity, fidelity), scene), contact.resolved(scene), material.model(),
+                         solver)
+        sim.material_params = material.params()
+        return sim
 
     @classmethod
-    def _build(cls, scene, fidelity, contact, formulation: str, solver, workers: int | None = None) -> "Simulator":
-        disc = discretise(scene_from_config(scene), fidelity, contact.settings(), formulation)
+    def _build(cls, scene, fidelity, contact, material: Material, solver, workers: int | None = None) -> "Simulator":
+        disc = discretise(scene_from_config(scene), fidelity, contact.settings(), material)
         return cls(disc, solver.linear, solver.newton(), solver.workers if workers is None else workers)
 
     @property
@@ -222,19 +236,18 @@ class Simulator:
 
     def equilibrium(self, X, d, mat) -> Equilibrium:
         """The equilibrium under actuation d (n_actuations,) of the design with reference points X
-        (n_points, 2) and material [E, nu] (2,): differentiable in all three; under jit a failed solve
-        says so in its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap:
-        one sample's), and a concrete argument's finiteness (under jit a non-finite input ends the solve
-        at once, info.status NONFINITE_INPUT); real numbers of another precision are taken as float64.
-
+        (n_points, 2) and material mat: differentiable in all three; under jit a failed solve says so in
+        its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap: one
+        sample's), and a concrete argument's finiteness and range (under jit a non-finite input ends the
+        solve at once, info.status NONFINITE_INPUT); other real precisions are taken as float64.
         Its derivative is implicit: the backward pass solves one adjoint system with the tangent at the
-        solution and returns cotangents for X, d and mat.  It works under `jax.jit`, `jax.grad` and
-        `jax.vmap` (a batch: see `equilibrium_batch`); it never raises for a failed solve.
+        solution.  It works under `jax.jit`, `jax.grad` and `jax.vmap` (see `equilibrium_batch`).
 
         Args:
             X: Reference control points (n_points, 2), from `reference_points`.
             d: Actuations (n_actuations,): each actuated group moves by d[actuation] * direction.
-            mat: The material [E, nu] (2,), as `nma.mechanics.material.material(E, nu)` makes it.
+            mat: The material's parameters: Neo-Hookean's [E, nu] (`nma.mechanics.material.material(E, nu)`),
+                another law's its parameters then nu (`MaterialConfig.params()`, `sim.material_params`).
 
         Returns:
             An `Equilibrium` (`u, info = ...`): the displacement of every control point (n_points, 2)
@@ -246,10 +259,9 @@ class Simulator:
             TypeError: An argument that is not an array of real numbers.
         """
         return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
-            ("X", X, (self.disc.mesh.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (2,)))))
+            ("X", X, (self.disc.mesh.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (self.disc.material.n_params,)))))
 
-    @staticmethod
-    def _checked(name: str, value, shape: tuple):
+    def _checked(self, name: str, value, shape: tuple):
         try:
             value = jnp.asarray(value)
         except TypeError:
@@ -269,10 +281,7 @@ class Simulator:
             got = np.asarray(value).tolist() if value.size <= 8 else f"{len(bad)} entries that are not, the first at {bad[0].tolist()}"
             raise ValueError(f"equilibrium: {name} must be finite, got {got}")
         if name == "mat" and not isinstance(value, jax.core.Tracer):
-            for field, number in zip(("E", "nu"), np.asarray(value, dtype=np.float64)):
-                if not in_range(float(number), MATERIAL_RANGES[field]):
-                    raise ValueError(f"equilibrium: mat = [E, nu] must have {field} in {MATERIAL_RANGES[field]}, "
-                                     f"got {float(number):g}")
+            self.disc.material.check(np.asarray(value, dtype=np.float64))
         return value.astype(jnp.float64)
 
     def equilibrium_batch(self, X, ds, mat):
@@ -337,7 +346,7 @@ class Simulator:
             >>> bool(eq.converged), eq.message
             (True, 'converged')
         """
-        d, params, mat = self.check_actuation(d), self.check_params(params), self._checked("mat", mat, (2,))
+        d, params, mat = self.check_actuation(d), self.check_params(params), self._checked("mat", mat, (self.disc.material.n_params,))
         with self.cold_solves():
             eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
         if throw and not eq.converged:
@@ -346,11 +355,17 @@ class Simulator:
 
     def failure(self, eq: Equilibrium, d, mat) -> SolverError | None:
         """None for a converged solve, else its error: which solve, how far it got and why."""
-        return eq.error(f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ", float(np.asarray(mat)[1]))
+        return eq.error(f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ", float(np.asarray(mat)[-1]))
 
     def energy(self, X, u, mat) -> float:
         """The strain energy of the state u: the integral of W over the reference domain."""
         return float(self._energy(X, u, mat))
+
+    def actuation_forces(self, X, u, mat) -> jnp.ndarray:
+        """The force each actuation pushes with at the state u (n_actuations,): dW/dd, per unit thickness
+        (stress x length; in newtons: nma.units).  Traceable and differentiable."""
+        f = jax.grad(lambda v: strain_energy(self.disc.solid, quadrature(self.disc.solid, X), v, mat))(u)
+        return f.reshape(-1)[self.disc.boundary.dirichlet_dofs] @ jnp.asarray(self.disc.boundary.actuation_matrix)
 
     def negative_eigenvalues(self, X, d, mat, u) -> int | None:
         """Unstable modes of an equilibrium u: the number of negative eigenvalues of the Hessian K_ff
@@ -372,15 +387,8 @@ class Simulator:
         return self.backend.negative_eigenvalues(self._tangents(X, jnp.asarray(d), mat, u_free))
 
     def tracked(self, X, u) -> dict[str, jnp.ndarray]:
-        """Deformed positions of the scene's tracked material points.
-
-        Args:
-            X: Reference control points (n_points, 2).
-            u: Displacement of every control point (n_points, 2), as an `Equilibrium` holds it.
-
-        Returns:
-            The scene's `tracked` names, each mapped to its deformed [x, y]; differentiable in X and u.
-        """
+        """Deformed positions of the scene's tracked material points: its `tracked` names, each mapped to
+        [x, y], of reference control points X and displacements u (n_points, 2); differentiable in both."""
         for name, value in (("X", X), ("u", u)):
             if jnp.shape(value) != (self.disc.mesh.n_points, 2):
                 raise ValueError(f"tracked: {name} must have shape ({self.disc.mesh.n_points}, 2), got {jnp.shape(value)}")

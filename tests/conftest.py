@@ -154,7 +154,7 @@ def _flatten(tree, prefix=""):
 @pytest.fixture(scope="session")
 def translation_run(tmp_path_factory):
     """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the first on 2
-    of the 4 evaluation targets), shared by the training, checkpoint, cluster and evaluation tests, and
+    of the 4 evaluation targets; its units stated: mm and N), shared by the training, checkpoint, cluster and evaluation tests, and
     trained once for all of pytest-xdist's worker processes (the first to ask trains it under a lock).
     It runs on one core: that a run finishes there (within nma_run's timeout) is checked with it."""
     import fcntl
@@ -167,8 +167,10 @@ def translation_run(tmp_path_factory):
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (run_dir / "metrics.json").exists():
             shutil.rmtree(run_dir, ignore_errors=True)
+            # in physical units: the paper's E = 0.07 read as MPa (a soft silicone's), a 10 mm cell, 10 mm thick
             nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1",
-                    "trainer.eval_subset=2", one_core=True, timeout=300)
+                    "trainer.eval_subset=2", "material.unit=MPa", "part.scale=2", "part.thickness=10",
+                    one_core=True, timeout=300)
     return run_dir
 
 

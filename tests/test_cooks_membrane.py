@@ -20,7 +20,7 @@ MAT = from_lame(mu=80.194, kappa=400889.8)
 
 
 def tip_displacement(ctrl: int, formulation: str = "displacement") -> float:
-    sim = Simulator(discretise(cooks_membrane(), Resolution(ctrl, 3), formulation=formulation), "pardiso")
+    sim = Simulator(discretise(cooks_membrane(), Resolution(ctrl, 3), material=formulation), "pardiso")
     sol = sim.solve({}, jnp.zeros(0), MAT)
     return float(sim.tracked(sim.reference_points({}), sol.u)["tip"][1] - 60.0)
 

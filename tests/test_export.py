@@ -172,6 +172,8 @@ def test_export_command_writes_the_file_and_report(trained_run, design):
     ({"run": "/nonexistent/run"}, "is not a training run directory"),
     ({"load_cases": True}, "load_cases=true: the load cases (tension, compression, one-sided compression) are the "
                            "translation part's"),
+    ({"material": {"law": "yeoh", "E": None, "parameters": {"C10": 0.1, "C20": 0.0, "C30": 0.0}}},
+     "material chooses the material the load cases are solved in: give load_cases=true too"),
 ])
 def test_bad_export_settings_name_the_field(trained_run, overrides, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):

@@ -19,7 +19,7 @@ _SIMS = {}
 
 def tight_simulator(scene, formulation="displacement"):
     if (scene, formulation) not in _SIMS:
-        disc = discretise(scene_from_config(config.load("scene", scene)), formulation=formulation)
+        disc = discretise(scene_from_config(config.load("scene", scene)), material=formulation)
         _SIMS[scene, formulation] = Simulator(disc, "pardiso", TIGHT)
     return _SIMS[scene, formulation]
 

@@ -23,6 +23,13 @@ def test_run_directory_holds_every_artefact(translation_run):
                                 "corrector": "line_search", "max_iters": 200, "max_step_iters": 100,
                                 "inversion_barrier": 0.0, "contact": False}
     assert [h["step"] for h in metrics["history"]] == [1, 2]
+    # its units stated (part.scale 2 mm, 10 mm thick, MPa): lengths in mm, forces in N = MPa x mm x mm
+    assert metrics["units"] == {"length": "mm", "mm_per_unit": 2.0, "force": "N", "newton_per_force_unit": 20.0,
+                                "thickness_mm": 10.0, "stress": "MPa"}
+    assert metrics["mean_pointer_error_mm"] == pytest.approx(2.0 * metrics["value"], rel=1e-12)
+    assert np.allclose(metrics["max_actuation_force_N"], 20.0 * np.asarray(metrics["max_actuation_force"]), rtol=1e-12)
+    assert len(metrics["max_actuation_force"]) == 2 and min(metrics["max_actuation_force"]) > 0
+    assert 0 < metrics["stretch_range"][0] < 1 < metrics["stretch_range"][1]  # the strains the law is asked
     # evaluations before the last on trainer.eval_subset samples, the last (the run's metric) on all
     assert [h["eval_samples"] for h in metrics["history"]] == [2, 4] and len(metrics["per_sample"]) == 4
     assert len(list((d / "fields").glob("eval_*.h5"))) == 4 == len(list((d / "fields").glob("eval_*.xdmf")))
@@ -55,7 +62,23 @@ def test_every_evaluated_state_is_checked_and_the_export_says_so(translation_run
     cases = again["load_cases"]["cases"]
     assert list(cases) == ["tension", "compression", "one-sided compression"] and all(c["converged"] for c in cases.values())
     assert np.dot(cases["tension"]["pointer_displacement_mm"], cases["compression"]["pointer_displacement_mm"]) < 0
+    # the actuators' forces in N (the run's units): tension pulls where compression pushes
+    assert again["load_cases"]["units"]["force"] == "N"
+    assert np.allclose(cases["tension"]["actuation_forces_N"], 20.0 * np.asarray(cases["tension"]["actuation_forces"]))
+    assert np.all(np.sign(cases["tension"]["actuation_forces"]) == -np.sign(cases["compression"]["actuation_forces"]))
     assert (tmp_path / "load_cases.png").stat().st_size > 20_000
+    # the part as made in another material (Mooney-Rivlin, in kPa): its own forces, in N, the run untouched
+    from nma.schema import MaterialConfig
+
+    made = MaterialConfig(name="a rubber", law="mooney_rivlin", E=None, parameters={"C10": 40.0, "C01": 10.0},
+                          unit="kPa")
+    rubber = export(ExportConfig(run=str(run), output=str(tmp_path / "c.svg"), load_cases=True, states=False,
+                                 material=made))["load_cases"]
+    assert rubber["material"]["law"] == "mooney_rivlin" and rubber["units"]["newton_per_force_unit"] == pytest.approx(0.02)
+    assert all(c["converged"] for c in rubber["cases"].values())
+    tension = rubber["cases"]["tension"]
+    assert np.allclose(tension["actuation_forces_N"], 0.02 * np.asarray(tension["actuation_forces"]))
+    assert not np.allclose(tension["actuation_forces"], cases["tension"]["actuation_forces"])
     again = again["evaluation_states"]
     assert again["source"].startswith("solved again")
     assert again["invalid_states"] == metrics["invalid_states"] and again["checked_states"] == 4

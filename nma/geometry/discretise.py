@@ -100,13 +100,14 @@ def _locate(nets: np.ndarray, target: np.ndarray, tol: float, grading: float) ->
 
 
 def discretise(spec: SceneSpec | PatchSceneSpec, fidelity=None, contact=None,
-               formulation: str = "displacement") -> Discretisation:
+               material: Material | str = "displacement") -> Discretisation:
     """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its fields: the
     control points and Gauss points per patch, the inversion barrier; fidelity=auto is resolved by the
     command, nma.fidelity.resolve, before it gets here; None: the paper's 5 x 5), with the
-    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the strain
-    energy's `formulation` (one of nma.mechanics.options.FORMULATIONS)."""
-    material = Material(formulation)
+    pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the
+    `material` (its law and formulation; a formulation's name, one of nma.mechanics.options.FORMULATIONS:
+    the Neo-Hookean law's)."""
+    material = material if isinstance(material, Material) else Material(material)
     fidelity = Resolution.of(fidelity)
     design = make_design(spec)
     m, g = fidelity.ctrl_per_patch, fidelity.grading

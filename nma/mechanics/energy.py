@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from ..geometry.mesh import Mesh
 from . import contact
 from .barrier import ipc
-from .material import det2, det_roots, neo_hookean, piola, tangent
+from .material import det2, det_roots
 from .solid import Solid
 
 
@@ -143,7 +143,7 @@ def strain_energy(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarr
     J = det2(F)
     valid = jnp.all(J > 0)
     safe = jnp.where(J[..., None, None] > 0, F, jnp.eye(2))
-    W = jnp.vectorize(lambda f: neo_hookean(f, mu, 0.0 if mixed else kappa), signature="(2,2)->()")(safe)
+    W = solid.material.point_terms(mat, volumetric=not mixed)[0](safe)
     energy = jnp.sum(quad.weights * W)
     if mixed:
         area, theta = _mean_dilatation(quad, jnp.where(J > 0, J, 1.0))  # J of `safe`, without recomputing it
@@ -200,15 +200,18 @@ ELEMENT_CHUNK: int | None = 128  # elements per chunk on a CPU; None: all at onc
 CHUNK_ABOVE = 8 * 2 ** 20        # bytes
 
 
-def _element_terms(quad: Quadrature, ue: jnp.ndarray, mu, kappa):
+def _element_terms(quad: Quadrature, ue: jnp.ndarray, point_terms):
     """Integral of W (Gauss points only), element forces (P, S2, 9, 2) and element tangents
-    (P, S2, 9, 2, 9, 2) from the element displacements ue (P, S2, 9, 2)."""
+    (P, S2, 9, 2, 9, 2) from the element displacements ue (P, S2, 9, 2), with the material's W, P and
+    dP/dF (Material.point_terms)."""
+    energy_density, piola, tangent = point_terms
+
     def terms(ue, G, w):  # any leading element dimensions
         F = jnp.eye(2) + jnp.einsum("...ai,...qaj->...qij", ue, G)
-        W = jnp.vectorize(lambda f: neo_hookean(f, mu, kappa), signature="(2,2)->()")(F)
+        W = energy_density(F)
         wG = w[..., None, None] * G
-        fe = jnp.einsum("...qij,...qaj->...ai", piola(F, mu, kappa), wG)
-        H = jnp.einsum("...qaj,...qijkl->...qaikl", wG, tangent(F, mu, kappa))
+        fe = jnp.einsum("...qij,...qaj->...ai", piola(F), wG)
+        H = jnp.einsum("...qaj,...qijkl->...qaikl", wG, tangent(F))
         return jnp.sum(w * W, axis=-1), fe, jnp.einsum("...qaikl,...qbl->...aibk", H, G)
 
     lead = ue.shape[:2]
@@ -253,7 +256,7 @@ def energy_force_tangents(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: j
     mu, kappa = solid.material.moduli(mat)
     mixed = solid.material.mixed
     # the volumetric term at the Gauss points, or per element below
-    energy, fe, Ke = _element_terms(quad, u[solid.mesh.elem_points], mu, 0.0 if mixed else kappa)
+    energy, fe, Ke = _element_terms(quad, u[solid.mesh.elem_points], solid.material.point_terms(mat, not mixed))
     if mixed:
         ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(solid.mesh, quad, u), kappa)
         energy, fe, Ke = energy + ev, fe + fv, Ke + Kv

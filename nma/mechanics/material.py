@@ -1,26 +1,33 @@
-"""Nearly incompressible Neo-Hookean material in 2D (the paper's energy, no thickness factor).
+"""The model's material: a hyperelastic law (nma.mechanics.laws) with its treatment of volume change.
 
+The paper's law, Neo-Hookean in 2D (no thickness factor), has closed-form stress and tangent here:
 W(F) = mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2,  mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
-The material is an array [E, nu] so that it is a differentiable input like any other.
+The other laws' stresses and tangents are W's derivatives by automatic differentiation.
+The material's parameters are an array (Neo-Hookean's [E, nu]) so that they are a differentiable input
+like any other.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 
 from ..errors import ConfigError
-from ..settings import check_range
+from ..settings import check_range, in_range
+from .laws import NEO_HOOKEAN, Law
 from .options import FORMULATIONS, MATERIAL_RANGES
 
 
 @dataclass(frozen=True)
 class Material:
-    """The model's material: the Neo-Hookean law with its treatment of volume change, `formulation`
-    (one of FORMULATIONS: the volume term at every Gauss point, or at each element's mean dilatation,
-    which does not lock as nu -> 0.5: nma.mechanics.energy).  Its parameters [E, nu] are an array given
-    to every solve (`material(E, nu)`), so that they are differentiable like the geometry."""
+    """The model's material: a law (nma.mechanics.laws; the paper's Neo-Hookean by default) with its
+    treatment of volume change, `formulation` (one of FORMULATIONS: the volume term at every Gauss point,
+    or at each element's mean dilatation, which does not lock as nu -> 0.5: nma.mechanics.energy).  Its
+    parameters (the law's, then nu; Neo-Hookean's [E, nu]) are an array given to every solve
+    (`parameters(...)`), so that they are differentiable like the geometry."""
     formulation: str = "displacement"
+    law: Law = NEO_HOOKEAN
 
     def __post_init__(self):
         if self.formulation not in FORMULATIONS:
@@ -30,10 +37,44 @@ class Material:
     def mixed(self) -> bool:
         return self.formulation == "mixed"
 
-    @staticmethod
-    def moduli(params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """The shear and bulk moduli (mu, kappa) of the parameters [E, nu]."""
-        return lame(params)
+    @property
+    def n_params(self) -> int:
+        """The length of the parameter array: the law's parameters and nu."""
+        return len(self.law.names) + 1
+
+    def check(self, params) -> None:
+        """Refuses concrete parameters outside the law's ranges (ValueError naming the entry)."""
+        names = (*self.law.names, "nu")
+        ranges = {**self.law.ranges(), "nu": MATERIAL_RANGES["nu"]}
+        for name, number in zip(names, params):
+            if not in_range(float(number), ranges[name]):
+                raise ValueError(f"equilibrium: mat = [{', '.join(names)}] must have {name} in {ranges[name]}, "
+                                 f"got {float(number):g}")
+
+    def moduli(self, params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """The initial shear and the bulk modulus (mu, kappa) of the parameters."""
+        if self.law is NEO_HOOKEAN:
+            return lame(params)
+        mu, nu = self.law.shear_modulus(params[:-1]), params[-1]
+        return mu, 2.0 * mu * (1.0 + nu) / (3.0 * (1.0 - 2.0 * nu))
+
+    def point_terms(self, params: jnp.ndarray, volumetric: bool = True):
+        """W(F), P(F) = dW/dF and dP/dF as functions of deformation gradients (..., 2, 2): with or without
+        the volumetric term kappa/2 (log J)^2 (the `mixed` formulation adds it per element)."""
+        mu, kappa = self.moduli(params)
+        k = kappa if volumetric else 0.0
+        if self.law is NEO_HOOKEAN:
+            return (jnp.vectorize(lambda f: neo_hookean(f, mu, k), signature="(2,2)->()"),
+                    lambda F: piola(F, mu, k), lambda F: tangent(F, mu, k))
+        p = params[:-1]
+        c0 = self.law.stress_free(p)
+
+        def W(f):
+            logJ = jnp.log(det2(f))
+            return self.law.psi_plane(p, f.T @ f) - c0 * logJ + 0.5 * k * logJ ** 2
+
+        return (jnp.vectorize(W, signature="(2,2)->()"), jnp.vectorize(jax.grad(W), signature="(2,2)->(2,2)"),
+                jnp.vectorize(jax.hessian(W), signature="(2,2)->(2,2,2,2)"))
 
 
 def material(E: float, nu: float) -> jnp.ndarray:

@@ -13,6 +13,11 @@ FORMULATIONS = ("displacement", "mixed")
 # cannot represent; E up to 1e30 (any unit system's stiffest solid), beyond which the energy and its
 # residual overflow float64 and a solve could not tell equilibrium from overflow
 MATERIAL_RANGES = {"E": "(0, 1e30]", "nu": "(-1, 0.5)"}
+# the hyperelastic laws (nma.mechanics.laws), by the name a config gives
+LAW_NAMES = ("neo_hookean", "mooney_rivlin", "yeoh", "ogden", "gent")
+# the physical units a material's stresses may be stated in, with their value in MPa (N / mm^2)
+STRESS_UNITS = ("Pa", "kPa", "MPa", "GPa")
+MPA_PER_UNIT = {"Pa": 1e-6, "kPa": 1e-3, "MPa": 1.0, "GPa": 1e3}
 # nu from which the volume constraint, not the load path, sets Newton's pace: a nearly incompressible
 # material (bulk over shear modulus at least 100), which the auto settings model locking-free
 NEARLY_INCOMPRESSIBLE = 0.495

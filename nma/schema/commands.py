@@ -10,7 +10,7 @@ from omegaconf import MISSING
 
 from ..errors import ConfigError
 from ..settings import Schema, bounded
-from .physics import ContactConfig, Fidelity, MaterialConfig, SolverConfig
+from .physics import ContactConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
 from .scene import SceneConfig
 from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
 from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
@@ -29,6 +29,7 @@ class TrainConfig:
     trainer: TrainerConfig = field(default_factory=TrainerConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
+    part: PartConfig = field(default_factory=PartConfig)
 
     def __post_init__(self):
         if not isinstance(self.task, TaskConfig):
@@ -40,6 +41,9 @@ class TrainConfig:
             self.task.check_scene(self.scene)
         if hasattr(self.task, "check_optim"):
             self.task.check_optim(self.optim)
+        if self.trainer.min_feature is not None and self.part.scale is None:  # a size in mm needs the part's scale
+            raise ConfigError(f"trainer.min_feature={self.trainer.min_feature} (mm) needs part.scale, the millimetres "
+                              f"per length unit of the scene (e.g. part.scale=2: a paper cell of 5 units is 10 mm)")
 
 
 @dataclass
@@ -57,6 +61,7 @@ class SimulateConfig:
     contact: ContactConfig = field(default_factory=ContactConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
+    part: PartConfig = field(default_factory=PartConfig)
     actuation: Optional[List[float]] = None   # one value per actuation of the scene; null means all zero
     output: OutputConfig = field(default_factory=OutputConfig)
 
@@ -75,19 +80,24 @@ class ExportConfig(Schema):
     """`python -m nma.export run=<run dir>`: a trained run's geometry as a file to make it from."""
     run: str = MISSING                      # a training run directory (its .hydra/config.yaml and checkpoints)
     format: Optional[str] = field(default=None, metadata={"doc": "svg, dxf or stl; null: output's extension, else svg"})
-    scale: float = bounded(1.0, "[0.001, 10000]", doc="millimetres per length unit of the scene (a part from "
-                           "microns to metres; the geometry libraries round below that)")
-    thickness: float = bounded(10.0, "[0.001, 100000]", doc="STL: extrusion height in millimetres")
+    scale: Optional[float] = bounded(None, "[0.001, 10000]", doc="millimetres per length unit of the scene (a part "
+                                     "from microns to metres; the geometry libraries round below that); null: the "
+                                     "run's part.scale, else 1")
+    thickness: Optional[float] = bounded(None, "[0.001, 100000]", doc="STL: extrusion height in millimetres; null: "
+                                         "the run's part.thickness, else 10")
     samples: int = bounded(32, "[2, 1024]", doc="points per knot span where curves become polylines "
                                                 "(STL, the fabrication report)")
     output: Optional[str] = None            # the file to write; default <run>/export/design.<format>
     states: bool = True                     # report whether every deformed state of the task's evaluation set is physical
     load_cases: bool = False                # translation: the paper's Fig. 5 load cases, deformed over the part
     load_fraction: float = bounded(0.5, "(0, 1]", doc="load_cases: the actuation as a fraction of the task's d_max")
+    material: Optional[MaterialConfig] = None  # material=<name>: the load cases in it (the part as made); null: the run's
 
     FORMATS: ClassVar[tuple[str, ...]] = ("svg", "dxf", "stl")
 
     def check(self):
+        if self.material is not None and not self.load_cases:
+            self.fail("material", "chooses the material the load cases are solved in: give load_cases=true too")
         given = self.format
         if given is not None and given not in self.FORMATS:
             self.fail("format", f"must be one of {list(self.FORMATS)}", given)

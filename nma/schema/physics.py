@@ -1,11 +1,11 @@
 """The mechanical model's settings: material, discretisation (fidelity), contact, solver."""
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
-from typing import ClassVar, Optional
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar, Dict, List, Optional
 
 from ..geometry.options import Resolution
-from ..mechanics.options import FORMULATIONS, MATERIAL_RANGES, NEARLY_INCOMPRESSIBLE, ContactSettings
+from ..mechanics.options import FORMULATIONS, LAW_NAMES, MATERIAL_RANGES, STRESS_UNITS, NEARLY_INCOMPRESSIBLE, ContactSettings
 from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
 from ..settings import Schema, bounded, choice, like, with_options
@@ -13,14 +13,83 @@ from ..settings import Schema, bounded, choice, like, with_options
 
 @dataclass
 class MaterialConfig(Schema):
-    """Neo-Hookean material: Young's modulus and Poisson's ratio (the paper: E = 0.07, nu = 0.3)."""
+    """The material: a hyperelastic law with its parameters and Poisson's ratio (nma.mechanics.laws; the
+    paper's: Neo-Hookean, E = 0.07, nu = 0.3).  `material=<law or elastomer>` picks a file of conf/material/."""
     prefix: ClassVar[str] = "material"
-    E: float = bounded(0.07, MATERIAL_RANGES["E"], doc="Young's modulus, in the units of every force and stress")
+    law: str = choice("neo_hookean", LAW_NAMES, doc="neo_hookean takes E; the others their `parameters`")
+    E: Optional[float] = bounded(0.07, MATERIAL_RANGES["E"], doc="Neo-Hookean's Young's modulus, in the unit of every "
+                                 "force and stress; null for the other laws")
     nu: float = bounded(0.3, MATERIAL_RANGES["nu"],
         doc="0.5 is incompressible, which a displacement model cannot represent")
+    parameters: Dict[str, float] = field(default_factory=dict, metadata={"doc": "the law's parameters by name: mooney_rivlin C10, C01; yeoh C10, C20, "
+                                          "C30; ogden mu1, alpha1 (to mu3, alpha3); gent mu, Jm"})
+    unit: Optional[str] = choice(None, (None, *STRESS_UNITS), doc="the unit of E and the parameters; null: the scene's own "
+                                 "(forces then in E x length)")
+    stretches: List[float] = bounded(factory=lambda: [0.5, 2.0], spec="(0, 100]", doc="principal stretches over which "
+                                     "the law must be stable (Drucker's condition in uniaxial, equibiaxial and planar "
+                                     "tension); a law unstable in them is refused")
+    name: Optional[str] = None  # what the material is, in words (a shipped elastomer's product name)
+    source: Optional[str] = None  # where the parameters come from: the data and the fit (conf/material/<elastomer>.yaml)
+    fit: Dict[str, Any] = field(default_factory=dict, metadata={"doc": "the fit's record (nma.fit): data, range, errors"})
     formulation: str = choice("auto", ("auto", *FORMULATIONS), doc="mixed: the volume term at each element's mean "
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy); auto: mixed "
                               f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
+
+    def check(self):
+        if self.law not in LAW_NAMES:
+            self.fail("law", f"must be one of {list(LAW_NAMES)}", self.law)
+        if len(self.stretches) != 2 or not self.stretches[0] < 1.0 < self.stretches[1]:
+            self.fail("stretches", "must be [low, high] with low < 1 < high", self.stretches)
+        if self.law == "neo_hookean":
+            if self.E is None:
+                self.fail("E", "must be given for law neo_hookean (in " + MATERIAL_RANGES["E"] + ")", self.E)
+            if self.parameters:
+                self.fail("parameters", "are the other laws'; neo_hookean takes E", dict(self.parameters))
+        else:
+            if self.E is not None:
+                self.fail("E", f"is Neo-Hookean's; law {self.law} takes material.parameters (set material.E=null)",
+                          self.E)
+            from ..mechanics.laws import law_of  # JAX: only for the laws that need a stability check
+            law_of(self.law, self.parameters).check(dict(self.parameters), self.nu, tuple(self.stretches))
+
+    @property
+    def values(self) -> dict:
+        """The law's parameters by name (Neo-Hookean's E)."""
+        return {"E": self.E} if self.law == "neo_hookean" else dict(self.parameters)
+
+    def record(self) -> dict:
+        """The law, its parameters, nu, the formulation and the unit: what a result says it was solved with."""
+        unit = {"unit": self.unit} if self.unit else {}
+        return {**({"name": self.name} if self.name else {}), "law": self.law, **self.values, "nu": self.nu, "formulation": self.formulation, **unit}
+
+    def model(self):
+        """The model's Material: the law and the formulation (auto resolved first: resolve_auto)."""
+        from ..mechanics.laws import law_of
+        from ..mechanics.material import Material
+        if self.formulation == "auto":
+            raise ValueError("material.formulation=auto is decided by the material: resolve it first (resolve_auto)")
+        return Material(self.formulation, law_of(self.law, self.values))
+
+    def params(self):
+        """The parameter array every solve takes: the law's parameters, then nu."""
+        import jax.numpy as jnp
+        from ..mechanics.laws import law_of
+        from ..runtime import configure_jax
+        configure_jax()  # float64, as every solve
+        return jnp.array([float(self.values[n]) for n in law_of(self.law, self.values).names] + [self.nu],
+                         dtype=jnp.float64)
+
+
+@dataclass
+class PartConfig(Schema):
+    """The physical part a scene's design becomes: its size and thickness in millimetres.  With both, and a
+    material whose stresses are in a physical unit (material.unit), lengths are reported in mm and forces in
+    N (a plane-strain force per unit thickness, times the thickness)."""
+    prefix: ClassVar[str] = "part"
+    scale: Optional[float] = bounded(None, "[0.001, 10000]", doc="millimetres per length unit of the scene; null: "
+                                     "lengths stay in the scene's units")
+    thickness: Optional[float] = bounded(None, "[0.001, 100000]", doc="the part's thickness (out of plane) in "
+                                         "millimetres; null: forces stay per unit thickness")
 
 
 _RESOLUTION = Resolution()  # the discretisation's defaults

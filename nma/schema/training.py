@@ -67,6 +67,13 @@ class TrainerConfig(Schema):
                                        "inversion_penalty); 0: off (the paper's objective alone). Tasks that solve "
                                        "nothing (the MNIST fit) have no states for it")
     inversion_margin: float = bounded(0.2, "(0, 1)", doc="det F below which the inversion penalty acts")
+    min_feature: Optional[float] = bounded(None, "(0, 10000]", doc="the narrowest ligament (material between two "
+                                           "boundary curves) the design may have, in millimetres at part.scale, "
+                                           "which it needs; enforced by the feature penalty "
+                                           "(nma.geometry.features); null: no bound (the width is still reported)")
+    feature_penalty: float = bounded(10.0, "[0, inf)", doc="with min_feature: weight of a loss term, the sum over "
+                                     "pairs of boundary curves of (max(0, min_feature - width) / min_feature)^2 "
+                                     "(unitless: the same in any scene units); 0: the bound is reported, not enforced")
     init_from: Optional[str] = None  # a run directory: start from its geometry (and network, where it fits)
     progress: bool = True  # a progress bar with the time left
 

@@ -196,7 +196,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     moved = ok & ~cut
     # the fraction of the increment the load goes (the free dofs go a of the predictor)
     reach = loading.past_the_walls(eqs, opts, p, s.u + a * step, s.lam + a * dlam, (1.0 - a) * dlam,
-                                   predictor & (walls < material) & (p.mat[1] < NEARLY_INCOMPRESSIBLE)) \
+                                   predictor & (walls < material) & (p.mat[-1] < NEARLY_INCOMPRESSIBLE)) \
         if eqs.solid.contact else 0.0
     a_load = a + reach * (1.0 - a)
     u_new, lam_new, dlam_new, dlam_cut = loading.after_step(s, s.u + a * step, moved, cut, a_load)

@@ -24,6 +24,8 @@ class Task:
         d_max: The largest actuation: the network's outputs are `d_max * tanh(.)`.
         metric_name: The metric's name in logs and metrics.json (`mean_pointer_error`).
         metric_unit: Its unit in words (`length units (cell = 5)`).
+        metric_dimension: `length` or `force` where the metric is one (reported in mm or N where the
+            run states its units: nma.units), else None.
 
     Examples:
         >>> import jax.numpy as jnp
@@ -40,6 +42,7 @@ class Task:
     d_max: float
     metric_name: str
     metric_unit: str
+    metric_dimension: str | None = None
 
     def sample(self, key, n: int) -> jnp.ndarray:  # (n, k) descriptors
         """Training descriptors.

@@ -26,12 +26,12 @@ import itertools
 from pathlib import Path
 
 import jax
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
 from ..geometry.outline import loop_basis, oriented_loops, sample_loop
-from ..mechanics.energy import quadrature, strain_energy
 from .base import Task
 from .schemas import SpecTask as SpecConfig
 
@@ -85,10 +85,10 @@ class SpecTask(Task):
     sweep_fps = 8.0
 
     def __init__(self, cfg: SpecConfig, rest: jnp.ndarray, pore_loop: np.ndarray | None = None,
-                 actuation: np.ndarray | None = None):
+                 actuation: int | None = None):
         """`rest`: the observed points at rest, (k, 2) tracked points or the pore's wall; `pore_loop`: the
-        pore's wall as point indices (n_edges, m), for goal pore_area; `actuation`: how the prescribed
-        DOFs move with the group's actuation (the actuation matrix's column), for goal force."""
+        pore's wall as point indices (n_edges, m), for goal pore_area; `actuation`: the group's actuation
+        index, for goal force."""
         self.name, self.d_max, self.goal = cfg.name, cfg.d_max, cfg.goal
         self.point_names = list(cfg.points)
         self.rest = jnp.asarray(rest)
@@ -126,6 +126,7 @@ class SpecTask(Task):
                           f"area error of pore {list(cfg.pore or [])}"),
             "force": ("mean_force_error", "force units (E x length)", f"force error on group {cfg.group}"),
         }[self.goal]
+        self.metric_dimension = {"move": "length", "distance": "length", "force": "force"}.get(self.goal)
 
     @property
     def metric_label(self):
@@ -138,9 +139,8 @@ class SpecTask(Task):
         return jax.random.uniform(key, (n, len(self.low)), minval=self.low, maxval=self.high)
 
     def observe(self, sim, geom, X, u, mat):
-        if self.actuation is not None:  # dW/dd_a = f_int at the prescribed DOFs . d u_D / d d_a
-            f = jax.grad(lambda v: strain_energy(sim.disc.solid, quadrature(sim.disc.solid, X), v, mat))(u)
-            return jnp.reshape(f.reshape(-1)[sim.disc.boundary.dirichlet_dofs] @ self.actuation, (1,))
+        if self.actuation is not None:  # dW/dd of the group's actuation
+            return jnp.reshape(sim.actuation_forces(X, u, mat)[self.actuation], (1,))
         if self.outline:
             return wall_points((X + u)[self.pore_loop], sim.disc.mesh.fidelity.grading)
         tracked = sim.tracked(X, u)
@@ -255,7 +255,7 @@ def spec(cfg: SpecConfig, sim) -> SpecTask:
         group = next((g for g in getattr(sim.disc.spec, "groups", ()) if g.name == cfg.group), None)
         if group is None:
             raise ConfigError(f"task.group {cfg.group!r} is not an actuated group of scene {sim.disc.spec.name}")
-        return SpecTask(cfg, jnp.zeros((1,)), actuation=np.asarray(sim.disc.boundary.actuation_matrix[:, group.actuation]))
+        return SpecTask(cfg, jnp.zeros((1,)), actuation=group.actuation)
     if cfg.goal == "pore_area":
         loop = pore_wall(sim.disc, np.asarray(X), cfg.pore)
         return SpecTask(cfg, wall_points(X[loop], sim.disc.mesh.fidelity.grading), loop)

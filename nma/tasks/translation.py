@@ -12,6 +12,7 @@ from .base import Task
 class Translation(Task):
     metric_name = "mean_pointer_error"
     metric_unit = "length units (cell = 5)"
+    metric_dimension = "length"
 
     def __init__(self, start, half_width: float, d_max: float, eval_grid: int, point: str = "pointer"):
         self.name = "translation"

@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 from matplotlib.transforms import Bbox  # noqa: E402
 
 from ..io.fields import sampler, write_fields  # noqa: E402
@@ -45,16 +46,21 @@ def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int
     return paths
 
 
-def figure_designs(path: Path, sim, X_before, X_after):
-    """The design before and after training, on one scale in the scene's length units."""
+def figure_designs(path: Path, sim, X_before, X_after, mm_per_unit: float | None = None):
+    """The design before and after training, on one scale: in mm where the run states its part's scale,
+    else in the scene's length units."""
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.9), sharex=True, sharey=True)
+    unit = "length units" if mm_per_unit is None else "mm"
     for ax, X, which in ((axes[0], X_before, "initial"), (axes[1], X_after, "learned")):
         X = np.asarray(X)
         draw_shape(ax, sim.disc, X, f"{which} design", colour=MATERIAL[which],
                    tracked=sim.disc.tracked_points(X), frame=True)
         draw_actuated(ax, sim.disc, X)
-        ax.set_xlabel("x [length units]")
-    axes[0].set_ylabel("y [length units]")
+        ax.set_xlabel(f"x [{unit}]")
+        if mm_per_unit is not None:  # the drawing stays in scene units; its ticks say millimetres
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v * mm_per_unit:g}"))
+    axes[0].set_ylabel(f"y [{unit}]")
     handles = [Patch(fc=MATERIAL["initial"], ec="#2b3a55", label="material, initial design"),
                Patch(fc=MATERIAL["learned"], ec="#2b3a55", label="material, learned design"),
                Line2D([], [], color=ACTUATED, lw=2, label="actuated boundary")]
@@ -323,14 +329,15 @@ def figure_curves(path: Path, task, history: list):
     plt.close(fig)
 
 
-def write_figures(figures: Path, trainer, evaluation, X_before, animation_frames: int) -> Path:
+def write_figures(figures: Path, trainer, evaluation, X_before, animation_frames: int,
+                  mm_per_unit: float | None = None) -> Path:
     """The figures of a finished run into `figures/`: the design before and after, the evaluation deformed
     (or, for a colour display, what it shows), the learning curves, the error map where the task has
-    one, the sweep animation, the pore shapes."""
+    one, the sweep animation, the pore shapes.  `mm_per_unit`: the design's axes in mm (part.scale)."""
     sim, task = trainer.sim, trainer.task
     geom = trainer.state["params"]["geom"]
     figures.mkdir(exist_ok=True)
-    figure_designs(figures / "design.png", sim, X_before, sim.reference_points(geom))
+    figure_designs(figures / "design.png", sim, X_before, sim.reference_points(geom), mm_per_unit)
     if getattr(task, "display", None) is not None:  # a colour display: draw what it shows
         figure_display(figures / "deformed.png", task, evaluation, geom)
         figure_colour_map(figures / "colours.png", sim, task, geom)

@@ -30,9 +30,10 @@ def validate(cfg: DictConfig, chosen: tuple[int, int] | None = None) -> TrainCon
     return resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene, chosen)))
 
 
-def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
+def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, Path]:
     """A training run directory's checked settings, its newest checkpointed parameters ({"net",
-    "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts."""
+    "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts.
+    `material`: the material settings to solve with in place of the run's (the part as it is made)."""
     import json
     from collections.abc import Mapping
 
@@ -70,12 +71,15 @@ def load_run(run_dir) -> tuple[TrainConfig, dict, Path]:
     if found is None:
         raise ConfigError(f"run={run} holds no checkpoint yet (checkpoints/step_*.msgpack)")
     path, raw = found
+    if material is not None:  # the settings the run left to auto are chosen again, by this material
+        cfg.material = material
     settings = validate(OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg), chosen_fidelity(raw))
     # what the design is and what it is asked: the run's files must still say what its checkpoint trained
-    trained = checkpoint.recorded(raw, DESIGN_GROUPS)
+    groups = [g for g in DESIGN_GROUPS if material is None or g != "material"]  # a material given is not the run's
+    trained = checkpoint.recorded(raw, groups)
     if trained is not None:
         now = {k: v for k, v in checkpoint.flatten(json.loads(json.dumps(fingerprint(settings))))
-               if k.split(".")[0] in DESIGN_GROUPS}
+               if k.split(".")[0] in groups}
         changed, diff = checkpoint.differences(trained, now, absent_means(settings))
         if changed:
             raise ConfigError(f"run={run}: its files no longer say what checkpoint {path.name} trained ("
@@ -168,12 +172,17 @@ def _shaping(s: TrainConfig) -> dict:
         trainer["steps"] = s.trainer.steps  # the schedule's length
     if s.trainer.inversion_penalty > 0:
         trainer["inversion_margin"] = s.trainer.inversion_margin
+    if s.trainer.min_feature is not None:  # the bound in the scene's units is min_feature / part.scale
+        trainer.update(min_feature=s.trainer.min_feature, feature_penalty=s.trainer.feature_penalty,
+                       part_scale=s.part.scale)
     task = asdict(s.task)
     if getattr(s.task, "dataset", None):  # the descriptors themselves, not only the file's name
         task["dataset_sha256"] = _sha256(Path(s.task.dataset))
     scene = {k: v for k, v in asdict(s.scene).items() if k not in ("contact", "fidelity")}  # resolved below
     return {"task": task, "scene": scene, "model": asdict(s.model), "fidelity": asdict(s.fidelity),
-            "material": asdict(s.material), "optim": asdict(s.optim), "trainer": trainer,
+            # the material's words (name, source, fit, unit) change no solve
+            "material": {k: v for k, v in asdict(s.material).items() if k not in ("name", "source", "fit", "unit")},
+            "optim": asdict(s.optim), "trainer": trainer,
             "contact": asdict(s.contact) if s.contact.enabled else {"enabled": False},
             "solver": {"element_bound": s.solver.element_bound}}
 
@@ -243,7 +252,7 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     from ..runtime import configure_jax
 
     configure_jax()
-    from ..mechanics.material import material
+    from ..geometry.features import Ligaments
     from ..registry import MODELS, TASKS
     from ..simulator import Simulator
     from ..runtime import available_cores
@@ -260,5 +269,8 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
-    return Trainer(task, sim, model, material(s.material.E, s.material.nu), s.trainer, s.optim, run_dir,
-                   logger, world, fingerprint(s), exact_init, absent_means(s))
+    # the narrowest ligament: reported for every design, and with trainer.min_feature bounded
+    bound = None if s.trainer.min_feature is None else s.trainer.min_feature / s.part.scale
+    features = Ligaments.of(sim.disc.mesh, sim.reference_points(sim.init_params()), bound, s.part.scale)
+    return Trainer(task, sim, model, s.material.params(), s.trainer, s.optim, run_dir,
+                   logger, world, fingerprint(s), exact_init, absent_means(s), features)

@@ -59,11 +59,12 @@ class Evaluation:
 class Trainer:
     def __init__(self, task, sim, model, mat, tcfg: TrainerConfig, ocfg: OptimConfig, run_dir: Path,
                  logger=None, world: World | None = None, fingerprint: dict | None = None, exact_init: bool = False,
-                 absent: dict | None = None):
+                 absent: dict | None = None, features=None):
         self.task, self.sim, self.model, self.mat = task, sim, model, mat
         self.cfg, self.ocfg, self.run_dir = tcfg, ocfg, Path(run_dir)
         self.fingerprint = fingerprint or {}
         self.absent = absent or {}  # what a setting missing from a checkpoint's fingerprint means
+        self.features = features  # nma.geometry.features.Ligaments: reported at each evaluation; with a bound, enforced
         self.world = world or World()
         self.logger = logger
         self.shard = self.world.shard(tcfg.batch_size)
@@ -148,6 +149,8 @@ class Trainer:
             margin = self.cfg.inversion_margin
             penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin))(u)
             losses = losses + self.cfg.inversion_penalty * penalty
+        if self.features is not None and self.features.bound is not None and self.cfg.feature_penalty > 0:
+            losses = losses + self.cfg.feature_penalty * self.features.penalty(X)  # one design: the same in each sample
         return jnp.sum(jnp.where(ok, losses, 0.0)), (ok, losses, info.status, info)
 
     def _apply(self, params, opt_state, grads):
@@ -266,7 +269,8 @@ class Trainer:
                   "over_converged": self.task.aggregate(metric[ok]) if ok.any() else None,
                   "stopped_inverting": int((status == Status.INVERTS).sum()),  # of the failed, those the element bound stopped
                   **summarise(states), "invalid_samples": invalid,
-                  "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist()}
+                  "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist(),
+                  **(self.features.report(X) if self.features is not None else {})}
         if self.sim.solver_record() is not None:  # how the run's solves started, and whether warm starts held
             record["warm_starts"] = self.sim.solver_record()
         return Evaluation(record, X, d, u, out, ts, ok, states)
@@ -365,6 +369,9 @@ class Trainer:
                              "states not physical)", step, self.task.metric_name, r[self.task.metric_name],
                              self.task.metric_unit, len(r["per_sample"]), r["failed_solves"], r["invalid_states"],
                              r["checked_states"])
+                    if r.get("ligaments_below_min_feature"):
+                        log.warning("step %d: %d ligaments below trainer.min_feature = %g mm (the narrowest %.4g mm)",
+                                    step, len(r["ligaments_below_min_feature"]), r["min_feature"], r["min_ligament_mm"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)
