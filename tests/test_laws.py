@@ -228,3 +228,17 @@ def test_principal_stretches_of_a_rotated_stretch():
     np.testing.assert_allclose(principal_stretch_range(jnp.asarray(np.stack([R @ U, U @ R]))), (0.8, 1.5), rtol=1e-14)
     lam = 0.3 + np.sqrt(1.09)
     np.testing.assert_allclose(principal_stretch_range(jnp.array([[1.0, 0.6], [0.0, 1.0]])), (1 / lam, lam), rtol=1e-14)
+
+
+@pytest.mark.parametrize("law", sorted(CASES))
+def test_stress_is_differentiable_in_every_parameter(law):
+    """d(P(F) : G)/d(parameters, nu) by JAX against central differences (step 1e-6 relative): what the
+    adjoint of a solve takes (test_a_solves_gradient_... checks one law through a whole solve)."""
+    model, p = material(law, CASES[law])
+    F, G = jnp.array([[1.3, 0.2], [-0.1, 0.9]]), jnp.array([[0.3, -0.7], [0.5, 1.1]])
+    f = lambda q: jnp.sum(model.point_terms(q)[1](F) * G)  # noqa: E731
+    g = np.asarray(jax.grad(f)(p))
+    for k in range(len(p)):
+        h = 1e-6 * abs(float(p[k]))
+        fd = (f(p.at[k].add(h)) - f(p.at[k].add(-h))) / (2 * h)
+        np.testing.assert_allclose(g[k], fd, rtol=1e-6, atol=1e-10)

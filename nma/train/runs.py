@@ -180,8 +180,9 @@ def _shaping(s: TrainConfig) -> dict:
         task["dataset_sha256"] = _sha256(Path(s.task.dataset))
     scene = {k: v for k, v in asdict(s.scene).items() if k not in ("contact", "fidelity")}  # resolved below
     return {"task": task, "scene": scene, "model": asdict(s.model), "fidelity": asdict(s.fidelity),
-            # the material's words (name, source, fit, unit) change no solve
-            "material": {k: v for k, v in asdict(s.material).items() if k not in ("name", "source", "fit", "unit")},
+            # what describes the material (name, source, fit, unit) or checks it (stretches) changes no solve
+            "material": {k: v for k, v in asdict(s.material).items()
+                         if k not in ("name", "source", "fit", "unit", "stretches")},
             "optim": asdict(s.optim), "trainer": trainer,
             "contact": asdict(s.contact) if s.contact.enabled else {"enabled": False},
             "solver": {"element_bound": s.solver.element_bound}}

@@ -370,8 +370,8 @@ class Trainer:
                              self.task.metric_unit, len(r["per_sample"]), r["failed_solves"], r["invalid_states"],
                              r["checked_states"])
                     if r.get("ligaments_below_min_feature"):
-                        log.warning("step %d: %d ligaments below trainer.min_feature = %g mm (the narrowest %.4g mm)",
-                                    step, len(r["ligaments_below_min_feature"]), r["min_feature"], r["min_ligament_mm"])
+                        log.warning("step %d: ligaments below trainer.min_feature = %g mm: %d (the narrowest %.4g mm)",
+                                    step, r["min_feature"], len(r["ligaments_below_min_feature"]), r["min_ligament_mm"])
                     if on_eval:
                         on_eval(ev)
             self.history.append(rec)
