@@ -39,7 +39,7 @@ class Units:
     def force_name(self) -> str:
         if self.newton_per_force is not None:
             return "N"
-        return f"{self.stress_unit or 'E'} x length unit, per unit thickness"
+        return f"{self.stress_unit or 'stress unit'} x length unit, per unit thickness"
 
     def record(self) -> dict:
         """What a result says of its units (metrics.json, nma.simulate's JSON, the export's report)."""
