@@ -7,7 +7,9 @@ Trains `experiments/repro.py <name> --out outputs/repro_min_feature/<name> part.
 trainer.min_feature=<bound>` (the same stages and baseline as `make repro-<name>`, the bound added) and
 writes results/<name>_min_feature/ (report.md, result.json, designs.png): the metric, its re-evaluation
 at 14 x 5, the narrowest ligament in mm and the states that are not physical, of the unbounded design
-(outputs/repro/<name>, `make repro-<name>`) and of the bounded one.
+(outputs/repro/<name>, `make repro-<name>`) and of the bounded one.  The bounded translation part is
+then checked as made: the paper's load cases solved in a fitted elastomer (`--made-of`, a file of
+conf/material/) at `--thickness` mm, its actuators' forces in N (nma.export's load cases, load_cases.png).
 
 The default bound, 0.8 mm at 2 mm per length unit (a paper cell of 5 units is 10 mm), is a desktop FDM
 printer's thinnest supported wall: two perimeters of its usual 0.4 mm nozzle (design guides agree, e.g.
@@ -86,7 +88,31 @@ def figure(path: Path, name: str, drawn, bound: float, scale: float) -> Path:
     return path
 
 
-def summarise(name: str, out: Path, bound: float, scale: float) -> None:
+def made_part(run: Path, made_of: str, scale: float, thickness: float, out: Path):
+    """The paper's load cases of the part made of `made_of` (nma.export.write_load_cases) and their table."""
+    from nma import config
+    from nma.export import write_load_cases
+    from nma.schema import MaterialConfig
+
+    material = MaterialConfig(**config.load("material", made_of))
+    cases = write_load_cases(run, 0.5, out / "load_cases.png", scale, thickness, material)
+    lines = ["", f"The bounded part as made: {material.name or made_of} (`material={made_of}`, nu {material.nu:g}), "
+             f"{thickness:g} mm thick, under the paper's load cases at half the task's largest actuation "
+             "(`nma.export load_cases=true`; load_cases.png):", "",
+             f"| load case | pointer moves [mm] | actuators push [{cases['units']['force']}] | physical |",
+             "|---|---|---|---|"]
+    for case, c in cases["cases"].items():
+        if not c["converged"]:
+            lines.append(f"| {case} | solve failed: {c['error']} | | |")
+            continue
+        move = ", ".join(f"{v:+.2f}" for v in c["pointer_displacement_mm"])
+        push = ", ".join(f"{v:+.3g}" for v in c.get("actuation_forces_N", c["actuation_forces"]))
+        lines.append(f"| {case} | ({move}) | {push} | {'yes' if c['valid'] else 'no'} |")
+    return cases, lines, out / "load_cases.png"
+
+
+def summarise(name: str, out: Path, bound: float, scale: float, made_of: str | None = None,
+              thickness: float = 10.0) -> None:
     unbounded_out = ROOT / "outputs" / "repro" / name
     rows, drawn = {}, []
     for label, where in (("unbounded", unbounded_out), (f"min_feature {bound:g} mm", out)):
@@ -108,8 +134,12 @@ def summarise(name: str, out: Path, bound: float, scale: float) -> None:
                      f"({' - '.join(r['min_ligament_between'])}) | {r['invalid_states']} of {r['checked_states']} | "
                      f"{r['failed_solves']} |")
     summary = {"experiment": f"{name}_min_feature", "min_feature_mm": bound, "scale_mm_per_unit": scale, "designs": rows}
+    figures = [fig]
+    if made_of:
+        summary["as_made"], more, png = made_part(compared_run(out, name), made_of, scale, thickness, out)
+        lines, figures = lines + more, figures + [png]
     (out / "comparison_min_feature.json").write_text(json.dumps(summary, indent=1))
-    results.write(f"{name}_min_feature", summary, "\n".join(lines) + "\n", [fig],
+    results.write(f"{name}_min_feature", summary, "\n".join(lines) + "\n", figures,
                   json.loads((out / "stamp.json").read_text()))
     print("\n".join(lines))
 
@@ -120,13 +150,17 @@ def main():
     ap.add_argument("--bound", type=float, default=0.8, help="trainer.min_feature, mm")
     ap.add_argument("--scale", type=float, default=2.0, help="part.scale, mm per length unit")
     ap.add_argument("--summarise", action="store_true", help="compare the runs there are, training none")
+    ap.add_argument("--made-of", default="ecoflex_0030", help="translation: the elastomer (conf/material/) the "
+                                                            "bounded part's load cases are solved in")
+    ap.add_argument("--thickness", type=float, default=10.0, help="translation: the part's thickness, mm")
     args = ap.parse_args()
     out = ROOT / "outputs" / "repro_min_feature" / args.name
     if not args.summarise:
         subprocess.run([sys.executable, "experiments/repro.py", args.name, "--baseline-steps",
                         str(BASELINE_STEPS[args.name]), "--out", str(out), f"part.scale={args.scale:g}",
                         f"trainer.min_feature={args.bound:g}"], check=True, cwd=ROOT)
-    summarise(args.name, out, args.bound, args.scale)
+    summarise(args.name, out, args.bound, args.scale, args.made_of if args.name == "translation" else None,
+              args.thickness)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from nma.schema import (ContactConfig, EvaluateConfig, ExportConfig, Fidelity, LoggerConfig, MaterialConfig, PartConfig,
                         ModelConfig, OptimConfig, SceneConfig, SolverConfig, TrainerConfig)
-from nma.schema.commands import OutputConfig
+from nma.schema.commands import FitConfig, OutputConfig
 from nma.settings import Schema
 from nma.tasks.schemas import TASK_SCHEMAS
 
@@ -37,7 +37,7 @@ GROUPS = [  # (heading, prefix, schema): the training run's groups, then the oth
     ("Scene", "scene", SceneConfig),
     *[(f"Task {name}", "task", schema) for name, schema in sorted(TASK_SCHEMAS.items())],
     ("nma.simulate: output", "output", OutputConfig), ("nma.export", "", ExportConfig),
-    ("nma.evaluate", "", EvaluateConfig),
+    ("nma.evaluate", "", EvaluateConfig), ("nma.fit", "", FitConfig),
 ]
 
 

@@ -261,7 +261,7 @@ def write_load_cases(run_dir, fraction: float, path: Path, scale: float, thickne
         ax.set_xlabel("x [mm]")
     axes[0].set_ylabel("y [mm]")
     made = "" if material is None else f", made of {material.name or material.law} (nu {material.nu:g})"
-    fig.suptitle(f"the learned part{made} (grey: undeformed) under the paper's load cases (blue: deformed; red: "
+    fig.suptitle(f"the learned part{made} under the paper's load cases\n(grey: undeformed; blue: deformed; red: "
                  "deformed but not a physical object; green: the pointer's move)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=150)

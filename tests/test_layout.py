@@ -9,7 +9,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the modules that turn checked settings into objects: the commands, their helpers, and the library's
 # front door (Simulator.from_config takes the same settings as the commands)
-COMMAND_LAYER = {"nma.cli", "nma.config", "nma.run", "nma.simulate", "nma.evaluate", "nma.export", "nma.sweep",
+COMMAND_LAYER = {"nma.cli", "nma.config", "nma.run", "nma.simulate", "nma.evaluate", "nma.export", "nma.fit", "nma.sweep",
                  "nma.fidelity", "nma.simulator", "nma.train.runs"}
 
 

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
-from .options import LAW_NAMES
+from .options import LAW_NAMES, MODES
 
 # Ogden's psi needs sum_i c_i^beta over the eigenvalues c_i of the 2 x 2 C.  With m = tr C / 2 and
 # x^2 = 1 - det C / m^2 it is m^beta ((1 + x)^beta + (1 - x)^beta): smooth in x^2, but x = sqrt(x^2) is not
@@ -202,9 +202,6 @@ def law_of(name: str, parameters=()) -> Law:
 
 
 # -- homogeneous incompressible deformations: the tests a material is characterised by ----------------
-MODES = ("uniaxial", "biaxial", "planar")
-
-
 def mode_stretches(mode: str, lam):
     """The principal stretches of an incompressible homogeneous deformation of stretch lam along 1:
     uniaxial tension, equibiaxial tension (1 and 2), planar tension (pure shear: 2 held)."""

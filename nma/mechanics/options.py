@@ -15,6 +15,8 @@ FORMULATIONS = ("displacement", "mixed")
 MATERIAL_RANGES = {"E": "(0, 1e30]", "nu": "(-1, 0.5)"}
 # the hyperelastic laws (nma.mechanics.laws), by the name a config gives
 LAW_NAMES = ("neo_hookean", "mooney_rivlin", "yeoh", "ogden", "gent")
+# the homogeneous incompressible tests a material is characterised by (nma.mechanics.laws.mode_stretches)
+MODES = ("uniaxial", "biaxial", "planar")
 # the physical units a material's stresses may be stated in, with their value in MPa (N / mm^2)
 STRESS_UNITS = ("Pa", "kPa", "MPa", "GPa")
 MPA_PER_UNIT = {"Pa": 1e-6, "kPa": 1e-3, "MPa": 1.0, "GPa": 1e3}

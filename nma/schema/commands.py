@@ -9,7 +9,8 @@ from typing import Any, ClassVar, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
-from ..settings import Schema, bounded
+from ..mechanics.options import LAW_NAMES, MATERIAL_RANGES, MODES, STRESS_UNITS
+from ..settings import Schema, bounded, choice, option
 from .physics import ContactConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
 from .scene import SceneConfig
 from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
@@ -135,3 +136,34 @@ class EvaluateConfig(Schema):
     eval_subset: Optional[int] = bounded(None, "[1, 100000000]", doc="this many samples of the task's evaluation "
                                          "set, evenly spaced through it (as trainer.eval_subset picks them), at "
                                          "both fidelities: for a set too large to solve finely; null: all of it")
+
+
+FIT_LAWS = tuple(law for law in LAW_NAMES if law != "neo_hookean")  # Neo-Hookean is Mooney-Rivlin with C01 = 0
+
+
+@dataclass
+class FitConfig(Schema):
+    """`python -m nma.fit data=<csv> law=<law> output=<yaml>`: a hyperelastic law fitted to stress-strain data."""
+    data: str = MISSING                     # a CSV of engineering strain and nominal stress (nma.fit reads its header)
+    law: str = choice("yeoh", FIT_LAWS, doc="the law fitted (nma.mechanics.laws)")
+    terms: int = bounded(2, "[1, 3]", doc="ogden: its number of terms")
+    mode: str = choice("uniaxial", MODES, doc="the test, where the data has no `mode` column")
+    strain_column: str = option("strain", "the engineering strain's column (the Soft Robotics Materials Database's: "
+                                "'Engineering Strain')")
+    stress_column: str = option("stress", "the nominal stress's column (force over the undeformed section)")
+    max_strain: Optional[float] = bounded(None, "(0, 100]", doc="fit the data up to this engineering strain (in "
+                                          "magnitude); null: all of it")
+    nu: float = bounded(0.499, MATERIAL_RANGES["nu"], doc="the material's Poisson's ratio (volume change), which "
+                        "a tensile test does not measure; elastomers are nearly incompressible")
+    unit: str = choice("MPa", STRESS_UNITS, doc="the stress column's unit")
+    starts: int = bounded(8, "[1, 100]", doc="initial guesses tried (the best fit is kept): Ogden's fits have many "
+                          "local minima")
+    name: Optional[str] = None              # the material, in words (written to the file)
+    source: Optional[str] = None            # where the data comes from (written to the file)
+    output: Optional[str] = None            # the material file to write (conf/material/<name>.yaml); null: print only
+
+    def check(self):
+        if not os.path.isfile(self.data):
+            self.fail("data", "must name a CSV file", self.data)
+        if self.output is not None and os.path.lexists(self.output):
+            self.fail("output", "names a file that exists; name another (or move it aside)", self.output)

@@ -8,7 +8,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..geometry.scene import SceneSpec
-from .commands import EvaluateConfig, ExportConfig, SimulateConfig, TrainConfig
+from .commands import EvaluateConfig, ExportConfig, FitConfig, SimulateConfig, TrainConfig
 from .scene import SceneConfig
 from ..settings import _kind
 from ..tasks.schemas import TASK_SCHEMAS
@@ -105,6 +105,7 @@ def register() -> None:
     cs.store(name="simulate_schema", node=SimulateConfig)
     cs.store(name="export_schema", node=ExportConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
+    cs.store(name="fit_schema", node=FitConfig)
     for name, schema in TASK_SCHEMAS.items():
         # a spec task has no defaults to build an instance from: its class is the node
         cs.store(group="task", name=f"{name}_schema", node=schema if name == "spec" else schema(name=name))

@@ -1,0 +1,235 @@
+"""A hyperelastic law fitted to a material's test data, written as a material file.
+
+    python -m nma.fit data=tensile.csv law=ogden terms=2 output=conf/material/my_silicone.yaml
+    python -m nma.fit data="Ecoflex 00-30.csv" strain_column="Engineering Strain" \\
+        stress_column="Engineering Stress (MPa)" max_strain=1.5 law=yeoh
+
+The CSV holds the engineering strain and the nominal stress (force over the undeformed section) of
+homogeneous incompressible tests: uniaxial tension or compression, and where given equibiaxial and planar
+tension (a `mode` column, else `mode=`).  Its header is the first row that names both columns, so a file
+with rows of metadata first (the Soft Robotics Materials Database's, semicolon-separated) reads as it is.
+
+The law's incompressible nominal stress (nma.mechanics.laws.nominal_stress) is fitted by least squares
+(scipy.optimize.least_squares, JAX's Jacobian) to the relative residuals (model - data) / max(|data|, 5% of
+the largest stress): every part of the curve counts, the small strains included, and a point near zero
+stress does not dominate.  Several initial guesses are tried (`starts`).  The fitted law must be stable
+(Drucker) over the data's stretches.  The material file holds the parameters, nu, the unit, those
+stretches, the source, and the fit's record (data file and its sha256, columns, points, range, errors);
+one JSON line with the same goes to stdout.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig
+
+from . import cli
+from .config import CONF_DIR
+from .errors import ConfigError
+from .schema import build, register
+from .schema.commands import FitConfig
+
+log = logging.getLogger("nma.fit")
+register()
+FLOOR = 0.05  # the residuals' denominator is at least this fraction of the largest measured stress
+
+
+def read(path, strain_column: str, stress_column: str, mode: str, max_strain: float | None):
+    """(modes, stretches, stresses) from a CSV: the rows after the first that names both columns (its
+    delimiter sniffed), each with numbers in both; `mode` where the file has no `mode` column."""
+    text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
+    try:
+        dialect = csv.Sniffer().sniff(text[:4096], delimiters=",;\t")
+    except csv.Error:
+        dialect = csv.excel
+    rows = list(csv.reader(io.StringIO(text), dialect))
+    head = next((i for i, r in enumerate(rows) if strain_column in [c.strip() for c in r]
+                 and stress_column in [c.strip() for c in r]), None)
+    if head is None:
+        raise ConfigError(f"data={path}: no row names both columns strain_column={strain_column!r} and "
+                          f"stress_column={stress_column!r}")
+    names = [c.strip() for c in rows[head]]
+    e, s, m = names.index(strain_column), names.index(stress_column), names.index("mode") if "mode" in names else None
+    modes, strains, stresses = [], [], []
+    for r in rows[head + 1:]:
+        try:
+            strain, stress = float(r[e]), float(r[s])
+        except (ValueError, IndexError):
+            continue
+        if not (np.isfinite(strain) and np.isfinite(stress)) or strain <= -1.0 or strain == 0.0:
+            continue
+        if max_strain is not None and abs(strain) > max_strain:
+            continue
+        modes.append(r[m].strip() if m is not None else mode)
+        strains.append(strain)
+        stresses.append(stress)
+    unknown = sorted(set(modes) - {"uniaxial", "biaxial", "planar"})
+    if unknown:
+        raise ConfigError(f"data={path}: column mode holds {unknown}; each row's must be uniaxial, biaxial or planar")
+    if len(strains) < 3:
+        raise ConfigError(f"data={path}: {len(strains)} rows with numbers in both columns"
+                          + (f" up to max_strain={max_strain:g}" if max_strain is not None else "")
+                          + "; a fit needs at least 3")
+    return np.asarray(modes), 1.0 + np.asarray(strains), np.asarray(stresses)
+
+
+def _model(law, modes, stretches):
+    """The nominal stresses of `law` at the data's modes and stretches, a function of its parameters."""
+    import jax.numpy as jnp
+
+    from .mechanics.laws import nominal_stress
+
+    groups = [(mode, np.flatnonzero(modes == mode)) for mode in np.unique(modes)]
+    order = np.concatenate([idx for _, idx in groups])
+    back = np.argsort(order)
+
+    def stresses(p):
+        return jnp.concatenate([nominal_stress(law, p, mode, stretches[idx]) for mode, idx in groups])[back]
+    return stresses
+
+
+def _initial_shear(stretches, stresses):
+    """mu0 from the small-strain slope: nominal stress ~ 3 mu0 (lambda - 1) in uniaxial tension."""
+    small = np.argsort(np.abs(stretches - 1.0))[:max(3, len(stretches) // 10)]
+    slope = np.sum(stresses[small] * (stretches[small] - 1.0)) / np.sum((stretches[small] - 1.0) ** 2)
+    return max(abs(slope) / 3.0, 1e-12)
+
+
+def _guesses(law_name: str, names, mu0: float, stretches, starts: int, seed: int = 0):
+    """Initial parameters and bounds of each law: a guess at the data's initial shear modulus mu0, then
+    random ones (Ogden's exponents across [-10, 10])."""
+    rng = np.random.default_rng(seed)
+    big = np.inf
+    if law_name == "mooney_rivlin":
+        first, lo, hi = [0.4 * mu0, 0.1 * mu0], [-big, -big], [big, big]
+    elif law_name == "yeoh":
+        first, lo, hi = [0.5 * mu0, 0.0, 0.0], [0.0, -big, -big], [big, big, big]
+    elif law_name == "gent":
+        I1 = np.max(stretches ** 2 + 2.0 / stretches)  # uniaxial's largest; any mode's first invariant is of its order
+        first, lo, hi = [mu0, 10.0 * (I1 - 3.0) + 1.0], [0.0, 1.0001 * (I1 - 3.0)], [big, 1e12]
+    else:
+        terms = len(names) // 2
+        alphas = [2.0, -2.0, 5.0][:terms]
+        first = [v for a in alphas for v in (2.0 * mu0 / (terms * a), a)]
+        lo = [v for _ in range(terms) for v in (-big, -100.0)]
+        hi = [v for _ in range(terms) for v in (big, 100.0)]
+    guesses = [np.asarray(first, float)]
+    for _ in range(starts - 1):
+        g = np.asarray(first, float) * rng.uniform(0.3, 3.0, len(first))
+        if law_name.startswith("ogden"):
+            a = rng.uniform(-10.0, 10.0, len(names) // 2)
+            a = np.where(np.abs(a) < 0.5, 0.5, a)
+            g[1::2] = a
+            g[0::2] = 2.0 * mu0 / (len(a) * a)
+        guesses.append(np.clip(g, np.asarray(lo) + 1e-12, np.asarray(hi) - 1e-12))
+    return guesses, (np.asarray(lo, float), np.asarray(hi, float))
+
+
+def fit(cfg: FitConfig) -> dict:
+    """The fitted law, its errors and the material file's contents (written where cfg.output says)."""
+    from .runtime import configure_jax
+
+    configure_jax()
+    import jax
+    import jax.numpy as jnp
+    from scipy.optimize import least_squares
+
+    from .mechanics.laws import drucker_unstable, law_of, ogden_names
+
+    names = ogden_names(cfg.terms) if cfg.law == "ogden" else None
+    law = law_of(cfg.law, names or ())
+    modes, stretches, data = read(cfg.data, cfg.strain_column, cfg.stress_column, cfg.mode, cfg.max_strain)
+    scale = np.maximum(np.abs(data), FLOOR * np.max(np.abs(data)))
+    model = _model(law, modes, stretches)
+    residual = jax.jit(lambda p: (model(p) - data) / scale)
+    jacobian = jax.jit(jax.jacfwd(lambda p: (model(p) - data) / scale))
+    # the stretches the data reach: uniaxial tension to l_max compresses the sides to l_max^-1/2, and no mode
+    # is checked past a principal stretch the data did not reach (biaxial at l_max^-1/2 stretches its third to l_max)
+    top = max(float(np.max(stretches)), 1.01)
+    stretch_range = [min(float(np.min(stretches)), top ** -0.5, 0.99), top]
+    guesses, bounds = _guesses(law.name, law.names, _initial_shear(stretches, data), stretches, cfg.starts)
+    best, unstable = None, None  # the best stable fit; the best fit refused as unstable, and why
+    for guess in guesses:
+        with np.errstate(all="ignore"):
+            try:
+                r = least_squares(lambda p: np.asarray(residual(jnp.asarray(p))), guess, bounds=bounds,
+                                  jac=lambda p: np.asarray(jacobian(jnp.asarray(p))), x_scale="jac", max_nfev=2000)
+            except ValueError:  # a guess where the law is not finite
+                continue
+        exponents = r.x[1::2] if law.name.startswith("ogden") else np.ones(1)
+        if not np.all(np.isfinite(r.fun)) or not float(law.shear_modulus(jnp.asarray(r.x))) > 0 \
+                or np.min(np.abs(exponents)) < 0.01 or (best is not None and r.cost >= best.cost):
+            continue  # not a law (an Ogden exponent at 0 is a term of no stress), or no better
+        why = drucker_unstable(law, jnp.asarray(r.x), tuple(stretch_range))
+        if not why:
+            best = r
+        elif unstable is None or r.cost < unstable[0].cost:
+            unstable = (r, why)
+    if best is None:
+        found = "" if unstable is None else (f"; the best, {dict(zip(law.names, unstable[0].x.round(6).tolist()))}, is "
+                                             f"not stable (Drucker) over the data's stretches "
+                                             f"{[round(x, 3) for x in stretch_range]}: {unstable[1]}")
+        raise ConfigError(f"law={law.name}: no fit from {cfg.starts} starts is stable with finite stresses at every "
+                          f"data point{found}; try another law (Ogden with more terms), or more starts")
+    p = best.x
+    fitted = np.asarray(model(jnp.asarray(p)))
+    rel = (fitted - data) / scale
+    record = {"data": Path(cfg.data).name, "sha256": hashlib.sha256(Path(cfg.data).read_bytes()).hexdigest(),
+              "modes": sorted(set(modes.tolist())), "columns": [cfg.strain_column, cfg.stress_column],
+              "points": int(len(data)), "strain_range": [float(np.min(stretches) - 1.0), float(np.max(stretches) - 1.0)],
+              "rms_relative_error": float(np.sqrt(np.mean(rel ** 2))), "max_relative_error": float(np.max(np.abs(rel))),
+              "r2": float(1.0 - np.sum((fitted - data) ** 2) / np.sum((data - np.mean(data)) ** 2))}
+    material = {"name": cfg.name, "law": cfg.law, "E": None, "nu": cfg.nu,
+                "parameters": {n: float(v) for n, v in zip(law.names, p)}, "unit": cfg.unit,
+                "stretches": [round(stretch_range[0], 4), round(stretch_range[1], 4)], "source": cfg.source,
+                "fit": record}
+    from .schema import MaterialConfig
+
+    MaterialConfig(**material)  # the file must load as a material: ranges, shear modulus, stability
+    if cfg.output:
+        write(Path(cfg.output), material)
+    return {"material": material, "output": cfg.output}
+
+
+def write(path: Path, material: dict) -> Path:
+    import yaml
+
+    what = material["name"] or Path(material["fit"]["data"]).stem
+    article = "an" if material["law"][0] in "aeiou" else "a"
+    header = (f"# {what}: {article} {material['law']} law fitted to {', '.join(material['fit']['modes'])} test data by nma.fit\n"
+              "# (the fit's record below). Fields and ranges: nma/schema/physics.py (MaterialConfig).\n")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(header + yaml.safe_dump(material, sort_keys=False, width=110))
+    return path
+
+
+def validate(cfg: DictConfig) -> FitConfig:
+    return build(FitConfig, cfg)
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="fit", version_base="1.3")
+def hydra_main(cfg: DictConfig) -> None:
+    with cli.exit_codes():
+        result = fit(validate(cfg))
+    r = result["material"]["fit"]
+    log.info("%s: rms relative error %.3g, largest %.3g, R^2 %.5f over %d points%s", result["material"]["law"],
+             r["rms_relative_error"], r["max_relative_error"], r["r2"], r["points"],
+             f"; written to {result['output']}" if result["output"] else "")
+    print(json.dumps(cli.json_safe(result), allow_nan=False), flush=True)
+
+
+def main() -> None:
+    cli.preflight("fit", lambda cfg, hydra_cfg, multirun: validate(cfg), sys.argv[1:])
+    hydra_main()
+
+
+if __name__ == "__main__":
+    main()
