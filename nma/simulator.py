@@ -19,9 +19,8 @@ import numpy as np
 
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
-from .mechanics.material import Material
 from .schema import ContactConfig, Fidelity, MaterialConfig, SolverConfig, build, scene_config, scene_from_config
-from .schema.physics import material_model
+from .schema.physics import resolve_auto
 from .mechanics.energy import quadrature, strain_energy
 from .runtime import available_cores
 from .solver.equations import Equations, tangents_at
@@ -42,6 +41,16 @@ def _settings(argument: str, group: str, value):
         return value
     raise TypeError(f"Simulator.from_config: {argument} must be a mapping, a {group} preset's name "
                     f"(conf/{group}/) or None, got {type(value).__name__} {value!r:.80}")
+
+
+@dataclasses.dataclass
+class _Settings:
+    """A command's settings as from_config builds them (what resolve_auto and from_settings read)."""
+    scene: Any
+    fidelity: Any
+    contact: Any
+    solver: Any
+    material: Any
 
 
 class Simulator:
@@ -111,15 +120,15 @@ class Simulator:
         Returns:
             The simulator of those settings.
         """
-        sim = cls._build(s.scene, s.fidelity, s.contact, s.material.model(), s.solver, workers)
+        disc = discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings(), s.material.model())
+        sim = cls(disc, s.solver.linear, s.solver.newton(), s.solver.workers if workers is None else workers)
         sim.material_params = s.material.params()
         return sim
 
     @classmethod
     def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
                     solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
-                    formulation: str = "displacement", material: Mapping[str, Any] | str | None = None
-                    ) -> "Simulator":
+                    formulation: str = "auto", material: Mapping[str, Any] | str | None = None) -> "Simulator":
         """A simulator from plain mappings, without Hydra: each checked as the commands check it, the
         fidelity and contact resolved for the scene.
 
@@ -132,7 +141,7 @@ class Simulator:
             solver: Newton's and the linear solver's settings; None: the defaults.
             contact: Contact between pore walls; None: none. `{"enabled": None}` follows the scene, as
                 the commands' `contact=auto` does.
-            formulation: `displacement`, `mixed` (locking-free as nu -> 0.5) or `auto` (by nu).
+            formulation: `displacement`, `mixed` (locking-free as nu -> 0.5) or `auto`: by the material's nu.
             material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's name,
                 `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not auto,
                 replaces `formulation`.  `sim.material_params` is its parameter array.
@@ -159,17 +168,12 @@ class Simulator:
         scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
         material = _settings("material", "material", material) or {}
         material = build(MaterialConfig, dataclasses.asdict(material) if dataclasses.is_dataclass(material) else material)
-        for auto in (formulation, material_model(material.nu).formulation):  # an auto formulation: by nu
-            material = dataclasses.replace(material, formulation=auto) if material.formulation == "auto" else material
-        sim = cls._build(scene, resolve(build(Fidelity, fidelity), scene), contact.resolved(scene), material.model(),
-                         solver)
-        sim.material_params = material.params()
-        return sim
-
-    @classmethod
-    def _build(cls, scene, fidelity, contact, material: Material, solver, workers: int | None = None) -> "Simulator":
-        disc = discretise(scene_from_config(scene), fidelity, contact.settings(), material)
-        return cls(disc, solver.linear, solver.newton(), solver.workers if workers is None else workers)
+        if material.formulation == "auto":
+            material = dataclasses.replace(material, formulation=formulation)
+        # what is left to auto (formulation, corrector, iterations, inversion barrier) is chosen by the material's
+        # nu as the commands choose it
+        return cls.from_settings(resolve_auto(_Settings(scene, resolve(build(Fidelity, fidelity), scene),
+                                                        contact.resolved(scene), solver, material)))
 
     @property
     def n_actuations(self) -> int:

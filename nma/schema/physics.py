@@ -47,8 +47,8 @@ class MaterialConfig(Schema):
                 self.fail("parameters", "are the other laws'; neo_hookean takes E", dict(self.parameters))
         else:
             if self.E is not None:
-                self.fail("E", f"is Neo-Hookean's; law {self.law} takes material.parameters (set material.E=null)",
-                          self.E)
+                self.fail("E", f"is Neo-Hookean's; law {self.law} takes material.parameters: choose material={self.law} "
+                          "(its file sets them), or set material.E=null and the parameters", self.E)
             from ..mechanics.laws import law_of  # JAX: only for the laws that need a stability check
             law_of(self.law, self.parameters).check(dict(self.parameters), self.nu, tuple(self.stretches))
 
