@@ -78,6 +78,10 @@ def read(path, strain_column: str, stress_column: str, mode: str, max_strain: fl
         raise ConfigError(f"data={path}: {len(strains)} rows with numbers in both columns"
                           + (f" up to max_strain={max_strain:g}" if max_strain is not None else "")
                           + "; a fit needs at least 3")
+    against = int(np.sum(np.asarray(strains) * np.asarray(stresses) < 0))
+    if against:  # a stretched specimen pulls back, a compressed one pushes
+        raise ConfigError(f"data={path}: {against} of {len(strains)} rows have a stress of the other sign than their "
+                          f"strain; check stress_column={stress_column!r} (tension is positive in both)")
     return np.asarray(modes), 1.0 + np.asarray(strains), np.asarray(stresses)
 
 

@@ -81,9 +81,14 @@ def test_the_command_writes_a_material_file(tmp_path):
     ({"law": "neo_hookean"}, "law must be one of ['mooney_rivlin', 'yeoh', 'ogden', 'gent']"),
     ({"data": "/nonexistent.csv"}, "data must name a CSV file"),
     ({"terms": 4}, "terms must be an integer in [1, 3]"),
+    ({"data": "negative"}, "25 of 25 rows have a stress of the other sign than their strain"),
 ])
 def test_bad_input_names_the_field(tmp_path, overrides, message):
     data = synthetic(tmp_path / "d.csv", law_of("mooney_rivlin"), [0.3, 0.05], modes=("uniaxial",))
+    if overrides.get("data") == "negative":  # the stress column of the other sign
+        rows = data.read_text().splitlines()
+        data.write_text("\n".join(rows[:1] + [r.rsplit(",", 1)[0] + ",-" + r.rsplit(",", 1)[1] for r in rows[1:]]))
+        overrides = {}
     with pytest.raises(ConfigError) as err:
         fit(FitConfig(**{"data": str(data), **overrides}))
     assert message in str(err.value)
