@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-min-feature repro-all settings-reference clean
+.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist study-min-feature repro-all settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -89,7 +89,7 @@ repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fin
 repro-shape-matching: ## pore shape matching (with contact): joint vs frozen vs no actuation -> outputs/repro/shape_matching/
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250 $(REPRO_ARGS)
 
-repro-min-feature:  ## translation and double rotation retrained with a 0.8 mm minimum feature at 2 mm per unit, vs unbounded -> results/*_min_feature/
+study-min-feature:  ## translation and double rotation retrained with a 0.8 mm minimum feature at 2 mm per unit, vs unbounded -> results/*_min_feature/
 	$(PYTHON) experiments/min_feature.py translation
 	$(PYTHON) experiments/min_feature.py rotation_double
 

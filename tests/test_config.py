@@ -458,7 +458,7 @@ def test_commands_are_console_scripts():
     from importlib.metadata import entry_points
 
     scripts = {e.name: e.value for e in entry_points(group="console_scripts") if e.name.startswith("nma-")}
-    assert scripts == {"nma-run": "nma.run:main", "nma-simulate": "nma.simulate:main",
+    assert scripts == {"nma-run": "nma.run:main", "nma-simulate": "nma.simulate:main", "nma-fit": "nma.fit:main",
                        "nma-evaluate": "nma.evaluate:main", "nma-export": "nma.export:main"}
     assert all(callable(e.load()) for e in entry_points(group="console_scripts") if e.name in scripts)
 
