@@ -244,6 +244,7 @@ def test_stress_is_differentiable_in_every_parameter(law):
         np.testing.assert_allclose(g[k], fd, rtol=1e-6, atol=1e-10)
 
 
+@pytest.mark.slow  # two scenes built and solved to 1e-12; the laws' reduction point by point is a fast test above
 def test_a_solve_in_a_law_that_reduces_to_neo_hookean_is_neo_hookeans():
     """The strip in the locking-free (mixed) formulation at nu 0.45: Mooney-Rivlin with C10 = mu/2, C01 = 0
     reaches Neo-Hookean's equilibrium (closed-form stress and tangent) to round-off: the laws share the
