@@ -1,6 +1,6 @@
 """The discrete equilibrium equations of one scene (Equations: potential, residual, tangents and their
 blocks; at a state, its energy, tangents and the adjoint's pullback), one solve's data (Problem:
-quadrature, boundary path, material) and Newton's iterate (State)."""
+quadrature, boundary path, material, and in a time step its Inertia) and Newton's iterate (State)."""
 from __future__ import annotations
 
 import copy
@@ -12,6 +12,22 @@ import jax.numpy as jnp
 from ..geometry.discretise import Discretisation
 from ..mechanics.energy import Quadrature, Tangents, energy_force_tangents, quadrature, strain_energy
 from .assembly import element_dofs
+
+
+class Inertia(NamedTuple):
+    """The quadratic term an implicit time step adds to the potential, 1/2 u.B u - b.u over every dof:
+    B the step's inertia and damping (element blocks on the tangent's pattern, (E, 18, 18)), b what the
+    previous state leaves (nma.dynamics.schemes).  Its Hessian B joins the element tangents, so every
+    safeguard of the static Newton (step bounds, line search, load-step cuts) serves a time step as is."""
+    blocks: jnp.ndarray  # (E, 18, 18)
+    b: jnp.ndarray       # (2 n_points,)
+
+    def energy(self, edofs, u):
+        ue = u[edofs]
+        return 0.5 * jnp.einsum("ea,eab,eb->", ue, self.blocks, ue) - jnp.dot(self.b, u)
+
+    def force(self, edofs, u):
+        return jnp.zeros_like(u).at[edofs].add(jnp.einsum("eab,eb->ea", self.blocks, u[edofs])) - self.b
 
 
 class Equations:
@@ -40,21 +56,31 @@ class Equations:
         u = jnp.zeros(2 * self.solid.mesh.n_points, u_free.dtype)
         return u.at[self.free].set(u_free).at[self.dirichlet].set(u_dir).reshape(-1, 2)
 
-    def potential(self, quad, u_free, u_dir, load, mat):
-        """Strain energy less the work of the dead load at load factor `load`."""
+    def potential(self, quad, u_free, u_dir, load, mat, inertia: Inertia | None = None):
+        """Strain energy less the work of the dead load at load factor `load` (a time step's: plus its
+        inertia term)."""
         u = self.full(u_free, u_dir)
-        return strain_energy(self.solid, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
+        potential = strain_energy(self.solid, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
+        if inertia is not None:
+            potential = potential + inertia.energy(self.edofs[:self.elements], u.reshape(-1))
+        return potential
 
-    def residual(self, quad, u_free, u_dir, load, mat):
-        return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat)
+    def residual(self, quad, u_free, u_dir, load, mat, inertia: Inertia | None = None):
+        return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat, inertia)
 
-    def linearise(self, quad, u_free, u_dir, load, mat, contact_normal=False):
+    def linearise(self, quad, u_free, u_dir, load, mat, contact_normal=False, inertia: Inertia | None = None):
         """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks of
-        its normal stiffness only, nma.mechanics.contact.force_and_blocks)."""
+        its normal stiffness only, nma.mechanics.contact.force_and_blocks; a time step's `inertia`)."""
         u = self.full(u_free, u_dir)
         energy, force, kel = energy_force_tangents(self.solid, quad, u, mat, contact_normal, self.contact_slots)
         potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
-        return potential, force.reshape(-1)[self.free] - load * self.f_free, kel
+        force = force.reshape(-1)
+        if inertia is not None:
+            edofs = self.edofs[:self.elements]
+            potential = potential + inertia.energy(edofs, u.reshape(-1))
+            force = force + inertia.force(edofs, u.reshape(-1))
+            kel = kel._replace(elements=kel.elements + inertia.blocks)
+        return potential, force[self.free] - load * self.f_free, kel
 
     def blocks(self, kel: Tangents):
         """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty slot's
@@ -106,6 +132,7 @@ class Problem(NamedTuple):
     size: jnp.ndarray
     u_D0: jnp.ndarray
     load0: jnp.ndarray
+    inertia: Inertia | None = None  # a time step's (nma.dynamics); None: a static solve
 
     def boundary(self, lam):
         return self.u_D0 + lam * (self.u_D - self.u_D0)

@@ -138,12 +138,18 @@ class HostNewton:
             self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
         return u, info
 
-    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None):
+    def time_step(self, X, d, mat, ws, start, inertia):
+        """One implicit time step (nma.dynamics): Newton from `start` = (u_free, u_D, kel_rest, X) of the
+        previous state, its potential with the step's Inertia; the factor of its last iterate stays in ws."""
+        return self._solve(X, d, mat, ws, False, start, inertia=inertia)
+
+    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None,
+               inertia=None):
         kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
         checked = set()  # converged load steps whose stability was checked (each once)
         with kernels():
             if start is not None:
-                p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start))
+                p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start, inertia))
             elif rest is not None:
                 p, s, lin = self.linearised(lambda k: k.start_at_rest(X, d, mat, rest.parts))
             else:
@@ -209,8 +215,8 @@ def _start_at_rest(eqs, opts, X, d, mat, at_rest):
     return p, s, linearise(eqs, opts, p, s, at_rest)
 
 
-def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest, X0):
-    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest, X0))
+def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest, X0, inertia=None):
+    p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest, X0), inertia)
     return p, s, linearise(eqs, opts, p, s)
 
 

@@ -63,7 +63,7 @@ class Linearised(NamedTuple):
     rhs: jnp.ndarray
 
 
-def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[Problem, State]:
+def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None, inertia=None) -> tuple[Problem, State]:
     """The problem data and the initial state (NONFINITE_INPUT at once for non-finite input, INVERTS for
     a warm start inverted at the check points under this design, with element_bound, WALLS_CROSS for one
     whose pores' walls cross under it, with contact).  Cold (start None): at rest.  Warm (start =
@@ -73,7 +73,9 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     predictor, whose right-hand side -(g + K_fD (u_D - u_D0)) also carries the start's own residual g
     where the design moved since: the first-order response to the change of design and actuation
     together.  The tolerance is the cold solve's either way (the force scale of the full load, from
-    the tangent at rest), so a warm answer meets the same test as a cold one."""
+    the tangent at rest), so a warm answer meets the same test as a cold one.  A time step (`inertia`,
+    nma.dynamics) starts warm at the previous state, kel_rest its matrix at rest with the inertia's
+    blocks; its force scale is its own out-of-balance force at the start (_step_scales)."""
     quad = quadrature(eqs.solid, X, check_points=opts.element_bound)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
@@ -86,8 +88,8 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     else:
         u0, u_D0, kel_rest, X0 = start
         finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0)) & jnp.all(jnp.isfinite(X0))
-        p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0))
-        tol, k_ref, f_ref = _scales(eqs, opts, p, kel_rest)
+        p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0), inertia)
+        tol, k_ref, f_ref = (_scales if inertia is None else _step_scales)(eqs, opts, p, kel_rest, u0)
     status = jnp.where(finite, Status.RUNNING, Status.NONFINITE_INPUT)
     if start is not None and opts.element_bound:
         # a start inverted between Gauss points under this design (it moved since): no bound holds from
@@ -109,13 +111,24 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None) -> tuple[P
     return p, init
 
 
-def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
+def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, u0=None):
     """The tolerance, the stiffness scale k_ref and the force scale f_ref, from the element tangents at
     rest: f_ref the norm of the linearised out-of-balance force of the full load, k_ref the largest
     diagonal entry."""
+    f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
+    return _tolerance(eqs, opts, p, kel, f_ref)
+
+
+def _step_scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, u0):
+    """A time step's scales: f_ref the norm of its linearised out-of-balance force at its start (the
+    previous state's residual under this step's inertia, and the boundary's move)."""
+    g0 = eqs.residual(p.quad, u0, p.u_D0, 1.0, p.mat, p.inertia)
+    return _tolerance(eqs, opts, p, kel, jnp.linalg.norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)))
+
+
+def _tolerance(eqs: Equations, opts: NewtonOptions, p: Problem, kel, f_ref):
     kdiag = jnp.max(jnp.stack([jnp.max(jnp.abs(jnp.diagonal(K, axis1=1, axis2=2)), initial=0.0)
                                for _, K in eqs.blocks(kel)]))
-    f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
     return opts.rtol * f_ref + opts.atol * kdiag * p.size, kdiag, f_ref
 
 
@@ -123,7 +136,8 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: State, at=None
     """First half of an iteration: linearise at the state (or take `at`, its potential, free residual and
     element tangents, already computed); a corrector that meets the tolerance closes its load step (and
     the solve, at full load); the right-hand side of the next step."""
-    E0, g, kel = (eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat, _contact_normal(eqs, opts, s))
+    E0, g, kel = (eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat, _contact_normal(eqs, opts, s),
+                                  p.inertia)
                   if at is None else at)
     rnorm = jnp.linalg.norm(g)
     first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest: the scales come from this tangent
@@ -186,7 +200,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
 
     def correct(_):
         descent = finite & (slope < 0)
-        energy = lambda u: eqs.potential(p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat)  # noqa: E731
+        energy = lambda u: eqs.potential(p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat, p.inertia)  # noqa: E731
         a, ok, agreement, curvature = corrector.search(eqs, opts, lin.kel, energy, s.u, step, E0, -jnp.abs(slope), a0)
         return a, (descent | flipped) & ok, descent, agreement, curvature
 
@@ -227,7 +241,7 @@ def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearise
     def body(c):
         a, _, k = c
         a = 0.5 * a
-        return a, eqs.potential(p.quad, s.u + a * v, p.boundary(s.lam), p.load(s.lam), p.mat), k + 1
+        return a, eqs.potential(p.quad, s.u + a * v, p.boundary(s.lam), p.load(s.lam), p.mat, p.inertia), k + 1
 
     a, Ea, _ = jax.lax.while_loop(lambda c: ~falls(c[0], c[1]) & (c[2] < opts.max_backtracks), body,
                                   (2.0 * a0, jnp.inf, 0))
