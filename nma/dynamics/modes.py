@@ -1,0 +1,65 @@
+"""Natural frequencies and when the static model suffices.
+
+The small vibrations about a state solve K_ff phi = omega^2 M_ff phi (free dofs; the prescribed ones
+held), with K the tangent and M the consistent mass at the same discretisation.  The lowest few come
+from scipy's Lanczos in shift-invert mode about 0 (eigsh, sigma = 0; K_ff is positive definite at a
+stable state).
+
+When dynamics matters: a structure driven by an actuation whose fastest content has period T_a lags
+its static equilibrium by about (T_1 / T_a)^2 of the motion, T_1 = 2 pi / omega_1 its lowest natural
+period (the quasi-static response of an oscillator below resonance: the dynamic amplification is
+1 / (1 - (omega / omega_1)^2)).  Below QUASI_STATIC (1%) the static model gives the same answer.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from ..mechanics.energy import Tangents, quadrature
+from ..solver.equations import tangents_at
+from .mass import mass_blocks
+
+QUASI_STATIC = 0.01  # the relative dynamic amplification below which the static model suffices
+
+
+def natural_frequencies(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_free=None) -> np.ndarray:
+    """The lowest `count` angular frequencies omega (rad per unit time) of small vibrations about the
+    state (d, u_free) (rest where None), ascending."""
+    eqs, pattern = sim.equations, sim.backend.pattern
+    d = jnp.zeros(sim.n_actuations) if d is None else jnp.asarray(d)
+    u_free = jnp.zeros(sim.disc.boundary.n_dofs) if u_free is None else jnp.asarray(u_free)
+    kel = tangents_at(eqs, X, d, mat, u_free)
+    M = mass_blocks(eqs.solid, quadrature(eqs.solid, X), density)
+    none = jnp.zeros((0, 18, 18))
+    K_ff = _full(pattern.matrix(kel))
+    M_ff = _full(pattern.matrix(Tangents(M, none, jnp.zeros(0, int), jnp.asarray(0))))
+    count = min(count, K_ff.shape[0] - 2)
+    w2 = spla.eigsh(K_ff, k=count, M=M_ff, sigma=0.0, which="LM", return_eigenvectors=False)
+    return np.sqrt(np.clip(np.sort(w2), 0.0, None))
+
+
+def _full(A):
+    """A symmetric matrix from a pattern that may hold its upper triangle only (PARDISO's)."""
+    import scipy.sparse as sp
+
+    upper = sp.triu(A)
+    return (upper + sp.triu(A, 1).T).tocsc() if (A != A.T).nnz and sp.tril(A, -1).nnz == 0 else A.tocsc()
+
+
+def dynamic_amplification(omega_1: float, period: float) -> float:
+    """How far a response lags the static one at an actuation of the given period: (T_1/T)^2 / (1 - (T_1/T)^2)
+    (infinite at and past resonance)."""
+    r2 = (2.0 * np.pi / omega_1 / period) ** 2
+    return float(r2 / (1.0 - r2)) if r2 < 1.0 else float("inf")
+
+
+def static_suffices(omega_1: float, period: float) -> str | None:
+    """The message that the static model gives the same answer, where the actuation's shortest period is
+    slow next to the lowest natural period; None where dynamics matters."""
+    amp = dynamic_amplification(omega_1, period)
+    if amp >= QUASI_STATIC:
+        return None
+    return (f"the actuation's shortest period {period:.4g} is {period * omega_1 / (2 * np.pi):.3g} times the "
+            f"structure's lowest natural period {2 * np.pi / omega_1:.4g}: the static model gives the same answer "
+            f"within {100 * amp:.2g}% (dynamics=off)")

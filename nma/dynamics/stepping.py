@@ -1,0 +1,82 @@
+"""The jitted pieces of a time step and of its adjoint, for one scene, scheme and damping.
+
+A step's residual, with u_{n+1} = (free u_f, prescribed u_D(t_{n+1})) and the state z_n = (u, v, a),
+    R(u_f; z_n, X, mat, u_D) = f(u_{n+1}) + B u_{n+1} - b(z_n) - f_ext        (free rows)
+is the static residual with the step's Inertia (nma.dynamics.schemes).  Its adjoint: for cotangents
+(u_bar, v_bar, a_bar) of z_{n+1}, the explicit update (v, a)_{n+1} = U(u_{n+1}, z_n) passes its part
+on to u_{n+1} and z_n; then lambda = K_eff^-1 u_bar_f with K_eff = K(u_{n+1}) + B, and
+(z_n, X, mat, u_D)_bar -= lambda^T dR/d(z_n, X, mat, u_D), u_D also receiving u_bar's prescribed rows.
+"""
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+
+from ..mechanics.energy import quadrature, strain_energy
+from ..solver.equations import Equations
+from .mass import mass_blocks, rayleigh, stiffness_at_rest
+from .schemes import Scheme
+
+
+class StepKernels:
+    """The jitted pieces: matrices, a step's Inertia, the update, the adjoint's two halves."""
+
+    def __init__(self, eqs: Equations, scheme: Scheme, density: float, alpha: float, beta: float, waveform):
+        self.eqs, self.scheme = eqs, scheme
+        self.edofs = eqs.edofs[:eqs.elements]
+        args = (eqs, scheme, density, alpha, beta)
+        self.matrices = jax.jit(partial(matrices, *args))
+        self.inertia = jax.jit(partial(_inertia_of, eqs, scheme))
+        self.update = jax.jit(scheme.update)
+        self.full = jax.jit(lambda u_free, d: eqs.full(u_free, eqs.A @ d).reshape(-1))
+        self.actuation = jax.jit(waveform)
+        self.internal_force = jax.jit(partial(internal_force, eqs))
+        self.update_vjp = jax.jit(partial(_update_vjp, scheme))
+        self.pullback = jax.jit(partial(_pullback, *args))
+        self.actuation_vjp = jax.jit(lambda c, t, d_bar: jax.vjp(lambda c: waveform(c, t), c)[1](d_bar)[0])
+
+
+def matrices(eqs, scheme, density, alpha, beta, X, mat):
+    """The mass and damping blocks of a design and material."""
+    quad = quadrature(eqs.solid, X)
+    M = mass_blocks(eqs.solid, quad, density)
+    K0 = stiffness_at_rest(eqs.solid, quad, mat) if beta else jnp.zeros_like(M)
+    return M, rayleigh(alpha, beta, M, K0)
+
+
+def internal_force(eqs: Equations, X, mat, u):
+    """The strain energy's gradient at u (flat, every dof)."""
+    quad = quadrature(eqs.solid, X)
+    return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
+
+
+def step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt):
+    """The step's Inertia from the state at t_n (flat arrays, every dof)."""
+    M, C = matrices(eqs, scheme, density, alpha, beta, X, mat)
+    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u), M, C, eqs.edofs[:eqs.elements], dt)
+
+
+def _inertia_of(eqs, scheme, X, mat, M, C, u, v, a, dt):
+    """step_inertia with the design's mass and damping blocks already computed (the forward sweep's)."""
+    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u), M, C, eqs.edofs[:eqs.elements], dt)
+
+
+def step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt):
+    inertia = step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt)
+    return eqs.residual(quadrature(eqs.solid, X), u_free_next, u_D_next, 1.0, mat, inertia)
+
+
+def _update_vjp(scheme, u_next, u, v, a, dt, v_bar, a_bar):
+    """U's cotangents: (u_next_bar, u_bar, v_bar, a_bar) from those of (v_{n+1}, a_{n+1})."""
+    _, vjp = jax.vjp(lambda un, u, v, a: scheme.update(un, u, v, a, dt), u_next, u, v, a)
+    return vjp((v_bar, a_bar))
+
+
+def _pullback(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt, lam):
+    """-lambda^T dR/d(X, mat, u, v, a, u_D)."""
+    def residual(X, mat, u, v, a, u_D):
+        return step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D, dt)
+
+    return jax.vjp(residual, X, mat, u, v, a, u_D_next)[1](-lam)

@@ -1,0 +1,279 @@
+"""Trajectories: implicit time stepping on the host, each step a Newton solve with the static solver's
+safeguards, and the discrete adjoint sweep backwards through the steps, as one differentiable function.
+
+Forward: the run is split into `steps` intervals of dt; an interval whose step does not converge (a
+load-step cut below solver.min_increment, the element bound, the iteration limit) is redone in 2, 4,
+... equal steps, up to 2^max_cuts: the static solver's load-step cuts become time-step cuts.  A step
+that still fails ends the trajectory and says at which time and why; its later states hold the last
+one reached.  Each step starts Newton at the previous state, so its predictor is the linearised
+response to the step's boundary motion and inertia.
+
+Backward: the states at the start of every step are kept (3 vectors of 2 n_points floats a step,
+u, v, a, plus the step's free displacements); nothing else.  The adjoint of a step needs the factor of
+K(u_{n+1}) + B at the converged state, which Newton never factorised (its last factor is of the
+iterate before), so the backward sweep factorises it, or refines from the neighbouring step's factor
+(nma.solver.linear.Workspace.adjoint: a few back-substitutions where B, ~M/dt^2, dominates).
+"""
+from __future__ import annotations
+
+import itertools
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError, SolverError
+from ..solver.host import HostNewton
+from ..solver.status import Status
+from .schemes import Scheme
+from .stepping import StepKernels
+
+KEPT_TRAJECTORIES = 256  # forward records awaiting their adjoint; the oldest go beyond this
+
+
+class TrajectoryInfo(NamedTuple):
+    """How a trajectory went: status (a Status: CONVERGED when every step did, else the failed step's),
+    the time it reached, its time steps (cut intervals count each of their steps), the intervals that
+    were cut, and Newton's iterations over all steps."""
+    status: jnp.ndarray
+    time: jnp.ndarray
+    steps: jnp.ndarray
+    cuts: jnp.ndarray
+    iterations: jnp.ndarray
+
+
+class _Step(NamedTuple):
+    t: float           # the step's start
+    dt: float
+    z: tuple           # (u, v, a) at its start, flat, every dof
+    u_free: np.ndarray  # its solution's free dofs
+    d: np.ndarray      # the actuation at its end
+
+
+class Dynamics:
+    """Time stepping of a Simulator's scene under an actuation waveform (nma.dynamics.waveform).
+
+    Args:
+        sim: The Simulator (a host linear backend: superlu, pardiso).
+        scheme: `newmark` or `generalised_alpha` (rho_inf its spectral radius at infinite frequency).
+        dt: The time step; steps: how many (the trajectory's states are at k dt, k = 0..steps).
+        density: Mass per unit area (the model's units).
+        alpha, beta: Rayleigh damping C = alpha M + beta K_0.
+        waveform: f(coeffs, t) -> actuations at time t, traceable (nma.dynamics.waveform.Fourier).
+        max_cuts: An interval may be redone in up to 2^max_cuts steps.
+        v0: Initial velocity (n_points, 2) or None (rest); undamped only (its initial acceleration is 0).
+    """
+
+    def __init__(self, sim, scheme: str = "newmark", rho_inf: float = 1.0, dt: float = 1.0, steps: int = 100,
+                 density: float = 1.0, alpha: float = 0.0, beta: float = 0.0, waveform=None, max_cuts: int = 4,
+                 v0=None, workers: int | None = None):
+        if sim.backend.traceable:
+            raise ConfigError(f"dynamics needs a host linear solver (pardiso, superlu): solver.linear="
+                              f"{sim.backend.name} solves in lockstep under vmap")
+        if np.any(np.asarray(sim.equations.f_ext)):
+            raise ConfigError("dynamics starts at rest: a scene with a dead load would start out of balance")
+        if v0 is not None and (alpha or beta):
+            raise ConfigError("dynamics: an initial velocity needs no damping (alpha = beta = 0), so that the "
+                              "initial acceleration is 0")
+        self.sim, self.eqs = sim, sim.equations
+        self.scheme = Scheme.of(scheme, rho_inf)
+        self.dt, self.steps, self.max_cuts = float(dt), int(steps), int(max_cuts)
+        self.waveform = waveform
+        self.kernels = StepKernels(self.eqs, self.scheme, density, alpha, beta, waveform)
+        self.newton = HostNewton(self.eqs, sim.backend, sim.options)
+        self.free, self.dirichlet = np.asarray(self.eqs.free), np.asarray(self.eqs.dirichlet)
+        self.A = np.asarray(self.eqs.A)
+        self.n = 2 * sim.disc.mesh.n_points
+        self.v0 = np.zeros(self.n) if v0 is None else np.asarray(v0, float).reshape(-1)
+        self.workers = workers or sim.workers
+        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-dynamics") if self.workers > 1 else None
+        self._kept: dict[int, list] = {}
+        self._tokens = itertools.count(1)
+        self._lock = threading.Lock()
+        self.function = _differentiable(self)
+
+    @property
+    def times(self) -> np.ndarray:
+        return self.dt * np.arange(self.steps + 1)
+
+    # -- one sample, forward
+    def run(self, X, coeffs, mat):
+        """(u (steps + 1, n_points, 2), v (same), TrajectoryInfo, the steps kept for the adjoint)."""
+        k = self.kernels
+        X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
+        M, C = k.matrices(X, mat)
+        kel0 = self.newton.linearised(lambda kk: kk.tangents(X, jnp.zeros(self.A.shape[1]), mat,
+                                                             jnp.zeros(len(self.free))), tangents=lambda kel: kel)
+        ws = self.sim.backend.workspace()
+        z = (np.asarray(k.full(jnp.zeros(len(self.free)), k.actuation(coeffs, 0.0))), self.v0, np.zeros(self.n))
+        us, vs, kept = [z[0]], [z[1]], []
+        status, t, substeps, cuts, iterations = Status.CONVERGED, 0.0, 0, 0, 0
+        try:
+            for _ in range(self.steps):
+                done, failed, its = self._interval(X, coeffs, mat, M, C, kel0, z, t, ws)
+                iterations += its
+                if failed is not None:  # (NewtonInfo, the time of the step that failed)
+                    status, t = int(failed[0].status), failed[1]
+                    break
+                kept.extend(done)
+                substeps += len(done)
+                cuts += len(done) > 1
+                last = done[-1]
+                t = last.t + last.dt
+                u1 = np.asarray(k.full(jnp.asarray(last.u_free), jnp.asarray(last.d)))
+                z = (u1, *self._next(last, u1))
+                us.append(z[0])
+                vs.append(z[1])
+        finally:
+            self.sim.backend.release(ws)
+        while len(us) < self.steps + 1:  # after a failed step: the last state reached
+            us.append(us[-1])
+            vs.append(vs[-1])
+        shape = (self.steps + 1, -1, 2)
+        info = TrajectoryInfo(np.int32(status), np.float64(t), np.int32(substeps), np.int32(cuts), np.int32(iterations))
+        return np.stack(us).reshape(shape), np.stack(vs).reshape(shape), info, kept
+
+    def _next(self, step: _Step, u1):
+        return tuple(np.asarray(a) for a in self.kernels.update(jnp.asarray(u1), *(jnp.asarray(x) for x in step.z),
+                                                                 step.dt))
+
+    def _interval(self, X, coeffs, mat, M, C, kel0, z, t, ws):
+        """The steps from t to t + dt (in 1, 2, 4, ... equal steps): (steps, None, iterations), or where
+        even the finest fails (None, (NewtonInfo, time), iterations)."""
+        k, iterations = self.kernels, 0
+        for level in range(self.max_cuts + 1):
+            n = 2 ** level
+            h, zz, done = self.dt / n, z, []
+            for j in range(n):
+                t0 = t + j * h
+                d1 = k.actuation(coeffs, t0 + h)
+                u, v, a = (jnp.asarray(x) for x in zz)
+                inertia = k.inertia(X, mat, M, C, u, v, a, h)
+                start = (u[self.free], u[self.dirichlet], kel0._replace(elements=kel0.elements + inertia.blocks), X)
+                u_free, info = self.newton.time_step(X, d1, mat, ws, start, inertia)
+                iterations += int(info.iterations)
+                if int(info.status) != Status.CONVERGED:
+                    failed = (info, t0)
+                    break
+                step = _Step(t0, h, zz, np.asarray(u_free), np.asarray(d1))
+                done.append(step)
+                u1 = np.asarray(k.full(u_free, d1))
+                zz = (u1, *self._next(step, u1))
+            else:
+                return done, None, iterations
+        return None, failed, iterations
+
+    # -- one sample, backward
+    def adjoint(self, kept: list, X, coeffs, mat, u_bar, v_bar):
+        """(X_bar, coeffs_bar, mat_bar) for cotangents of the states at the steps' times."""
+        k = self.kernels
+        X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
+        M, C = k.matrices(X, mat)
+        u_bar, v_bar = (np.asarray(a).reshape(self.steps + 1, -1) for a in (u_bar, v_bar))
+        X_bar, mat_bar, c_bar = np.zeros(X.shape), np.zeros(mat.shape), np.zeros(coeffs.shape)
+        zb = [u_bar[-1].copy(), v_bar[-1].copy(), np.zeros(self.n)]
+        grid = len(u_bar) - 1  # the grid time the next state back is at
+        ws = self.sim.backend.workspace()
+        try:
+            for step in reversed(kept):
+                u, v, a = (jnp.asarray(x) for x in step.z)
+                d1, uf1 = jnp.asarray(step.d), jnp.asarray(step.u_free)
+                u1 = k.full(uf1, d1)
+                un_b, u_b, v_b, a_b = k.update_vjp(u1, u, v, a, step.dt, jnp.asarray(zb[1]), jnp.asarray(zb[2]))
+                u1_bar = zb[0] + np.asarray(un_b)
+                B = k.inertia(X, mat, M, C, u, v, a, step.dt).blocks
+                kel = self.newton.linearised(lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel)
+                lam = ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[self.free]) \
+                    if np.any(u1_bar[self.free]) else np.zeros(len(self.free))
+                Xb, mb, ub, vb, ab, uDb = k.pullback(X, mat, u, v, a, uf1, u1[self.dirichlet], step.dt, jnp.asarray(lam))
+                d_bar = self.A.T @ (np.asarray(uDb) + u1_bar[self.dirichlet])
+                c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
+                X_bar += np.asarray(Xb)
+                mat_bar += np.asarray(mb)
+                zb = [np.asarray(u_b) + np.asarray(ub), np.asarray(v_b) + np.asarray(vb), np.asarray(a_b) + np.asarray(ab)]
+                if abs(step.t - self.times[grid - 1]) <= 1e-9 * self.dt:  # back at a grid time: its own cotangents
+                    grid -= 1
+                    zb[0] += u_bar[grid]
+                    zb[1] += v_bar[grid]
+        finally:
+            self.sim.backend.release(ws)
+        return X_bar, c_bar, mat_bar
+
+    # -- batches (pure_callback's broadcast_all)
+    def _map(self, fn, items):
+        return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
+
+    def forward_batch(self, X, coeffs, mat, keep: bool):
+        lead = np.shape(coeffs)[:-1]
+        Xs, cs, ms = (_samples(a, lead) for a in (X, coeffs, mat))
+
+        def one(i):
+            u, v, info, kept = self.run(Xs[i], cs[i], ms[i])
+            token = 0
+            if keep:
+                token = next(self._tokens)
+                with self._lock:
+                    self._kept[token] = kept
+                    while len(self._kept) > KEPT_TRAJECTORIES:
+                        self._kept.pop(next(iter(self._kept)))
+            return u, v, info, np.int64(token)
+
+        return _stack(self._map(one, range(len(cs))), lead)
+
+    def backward_batch(self, X, coeffs, mat, u_bar, v_bar, token):
+        lead = np.shape(coeffs)[:-1]
+        Xs, cs, ms, ub, vb, tokens = (_samples(a, lead) for a in (X, coeffs, mat, u_bar, v_bar, token))
+
+        def one(i):
+            with self._lock:
+                kept = self._kept.get(int(tokens[i]))
+            if kept is None:
+                raise SolverError("dynamics: a trajectory's adjoint was asked after its forward record was dropped")
+            return self.adjoint(kept, Xs[i], cs[i], ms[i], ub[i], vb[i])
+
+        out = self._map(one, range(len(cs)))
+        with self._lock:
+            for t in set(tokens.tolist()):
+                self._kept.pop(int(t), None)
+        return _stack(out, lead)
+
+
+def _differentiable(dyn: Dynamics):
+    """trajectory(X, coeffs, mat) -> (u, v, TrajectoryInfo), differentiable in X, coeffs and mat (u and v
+    at the steps' times; vmap batches it over samples)."""
+    def call(X, coeffs, mat, keep):
+        m = dyn.steps + 1
+        state = jax.ShapeDtypeStruct((m, dyn.n // 2, 2), X.dtype)
+        info = TrajectoryInfo(*(jax.ShapeDtypeStruct((), t) for t in (jnp.int32, X.dtype, jnp.int32, jnp.int32, jnp.int32)))
+        shapes = (state, state, info, jax.ShapeDtypeStruct((), jnp.int64))
+        return jax.pure_callback(lambda *a: dyn.forward_batch(*a, keep=keep), shapes, X, coeffs, mat,
+                                 vmap_method="broadcast_all")
+
+    @jax.custom_vjp
+    def trajectory(X, coeffs, mat):
+        return call(X, coeffs, mat, False)[:3]
+
+    def fwd(X, coeffs, mat):
+        u, v, info, token = call(X, coeffs, mat, True)
+        return (u, v, info), (X, coeffs, mat, token)
+
+    def bwd(res, cotangents):
+        X, coeffs, mat, token = res
+        out = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in (X, coeffs, mat))
+        return jax.pure_callback(dyn.backward_batch, out, X, coeffs, mat, cotangents[0], cotangents[1], token,
+                                 vmap_method="broadcast_all")
+
+    trajectory.defvjp(fwd, bwd)
+    return trajectory
+
+
+def _stack(samples: list, lead: tuple):
+    return jax.tree_util.tree_map(lambda *xs: np.stack(xs).reshape(lead + np.shape(xs[0])), *samples)
+
+
+def _samples(a, lead: tuple) -> np.ndarray:
+    a = np.asarray(a)
+    return a.reshape((int(np.prod(lead)),) + a.shape[len(lead):])
