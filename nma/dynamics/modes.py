@@ -26,6 +26,12 @@ QUASI_STATIC = 0.01  # the relative dynamic amplification below which the static
 def natural_frequencies(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_free=None) -> np.ndarray:
     """The lowest `count` angular frequencies omega (rad per unit time) of small vibrations about the
     state (d, u_free) (rest where None), ascending."""
+    return natural_modes(sim, X, mat, density, count, d, u_free)[0]
+
+
+def natural_modes(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_free=None):
+    """(omega (count,), modes (count, free dofs) M-orthonormal): the lowest natural frequencies and their
+    mode shapes about the state (d, u_free) (rest where None)."""
     eqs, pattern = sim.equations, sim.backend.pattern
     d = jnp.zeros(sim.n_actuations) if d is None else jnp.asarray(d)
     u_free = jnp.zeros(sim.disc.boundary.n_dofs) if u_free is None else jnp.asarray(u_free)
@@ -35,8 +41,9 @@ def natural_frequencies(sim, X, mat, density: float = 1.0, count: int = 6, d=Non
     K_ff = _full(pattern.matrix(kel))
     M_ff = _full(pattern.matrix(Tangents(M, none, jnp.zeros(0, int), jnp.asarray(0))))
     count = min(count, K_ff.shape[0] - 2)
-    w2 = spla.eigsh(K_ff, k=count, M=M_ff, sigma=0.0, which="LM", return_eigenvectors=False)
-    return np.sqrt(np.clip(np.sort(w2), 0.0, None))
+    w2, modes = spla.eigsh(K_ff, k=count, M=M_ff, sigma=0.0, which="LM")
+    order = np.argsort(w2)
+    return np.sqrt(np.clip(w2[order], 0.0, None)), modes[:, order].T
 
 
 def _full(A):

@@ -44,10 +44,11 @@ class Trial(NamedTuple):
 class LineSearch:
     """The Newton step, shortened as a whole until the energy falls enough."""
 
-    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0):
-        """How far along `step` (slope < 0, at most a0) and whether to take it: (a, ok, agreement, curvature)."""
+    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None):
+        """How far along `step` (slope < 0, at most a0) and whether to take it: (a, ok, agreement, curvature).
+        `noise`: the energy's round-off where it is known to exceed 1e-12 |E0| (a time step's)."""
         curvature = jnp.zeros_like(slope)
-        a, ok = _line_search(energy, opts, u, step, E0, slope, a0)
+        a, ok = _line_search(energy, opts, u, step, E0, slope, a0, noise)
         return a, ok, jnp.ones_like(slope), curvature
 
     def cut(self, s: State, opts: NewtonOptions, t: Trial):
@@ -62,9 +63,9 @@ class LineSearch:
 class TrustRegion:
     """The step of K + shift I, taken where the energy's quadratic model predicted its fall."""
 
-    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0):
+    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None):
         curvature = eqs.curvature(kel, step)
-        a, ok, agreement = _trust_region(energy, u, step, E0, slope, curvature, a0)
+        a, ok, agreement = _trust_region(energy, u, step, E0, slope, curvature, a0, noise)
         return a, ok, agreement, curvature
 
     def cut(self, s: State, opts: NewtonOptions, t: Trial):
@@ -75,10 +76,16 @@ class TrustRegion:
                                  t.descent, t.agreement, cut)
 
 
-def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0):
+def _slack(E0, noise):
+    """The energy's round-off: 1e-12 |E0|, or `noise` more where the caller knows it larger."""
+    slack = 1e-12 * jnp.abs(E0) + 1e-300
+    return slack if noise is None else slack + noise
+
+
+def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=None):
     """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy): the step and
     whether it was found."""
-    slack = 1e-12 * jnp.abs(E0) + 1e-300
+    slack = _slack(E0, noise)
 
     def ok(a, Ea):
         return Ea <= E0 + opts.armijo * a * slope + slack
@@ -96,11 +103,11 @@ def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0):
     return a, ok(a, Ea) & (alpha0 > 0)
 
 
-def _trust_region(energy, u, step, E0, slope, curvature, a):
+def _trust_region(energy, u, step, E0, slope, curvature, a, noise=None):
     """The trust-region test of a corrector step a * step (its slope and curvature along `step`): the
     energy's actual fall against the fall its quadratic model predicts.  Returns (a, accepted, ratio).
     Near equilibrium both are round-off, and a step that does not raise the energy beyond it is taken."""
-    slack = 1e-12 * jnp.abs(E0) + 1e-300
+    slack = _slack(E0, noise)
     predicted = -(a * slope + 0.5 * a * a * curvature)
     Ea = energy(u + a * step)
     ratio = (E0 - Ea) / jnp.maximum(predicted, slack)

@@ -1,0 +1,225 @@
+"""Dynamics (nma.dynamics): the consistent mass, the time-stepping schemes, natural frequencies, and the
+adjoint through time.  References are named where each is used."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from nma.dynamics.mass import mass_blocks
+from nma.dynamics.modes import natural_frequencies, natural_modes, static_suffices
+from nma.dynamics.schemes import Scheme, _apply
+from nma.dynamics.trajectory import Dynamics
+from nma.dynamics.waveform import Fourier
+from nma.mechanics import contact
+from nma.mechanics.energy import Tangents, quadrature, strain_energy
+from nma.simulator import Simulator
+
+CELLS = 20  # a clamped strip of 20 solid cells of 5 x 5: L = 100, h = 5 (slenderness 20)
+L, H = 5.0 * CELLS, 5.0
+BEAM = {"name": "beam", "cell_size": 5.0, "cells": "S" * CELLS, "groups": [],
+        "supports": [{"segment": [[0, 0], [0, H]], "kind": "clamped"}], "tracked": {"tip": [L, H / 2]}}
+
+
+def no_actuation(coeffs, t):
+    return jnp.zeros(0) + 0.0 * coeffs[0]
+
+
+@pytest.fixture(scope="module")
+def beam():
+    sim = Simulator.from_config(BEAM, fidelity={"quad_points": 3}, solver="superlu")
+    X = sim.reference_points(sim.init_params())
+    omega, modes = natural_modes(sim, X, sim.material_params, count=2)
+    return sim, X, omega, modes
+
+
+def _energy(sim, X, mat, u, v):
+    """Kinetic plus strain energy (density 1)."""
+    quad = quadrature(sim.equations.solid, X)
+    M, edofs = mass_blocks(sim.equations.solid, quad, 1.0), sim.equations.edofs[:sim.equations.elements]
+    v = jnp.asarray(v).reshape(-1)
+    return float(0.5 * v @ _apply(M, edofs, v) + strain_energy(sim.equations.solid, quad, jnp.asarray(u), mat))
+
+
+def _mode_velocity(sim, mode, omega, tip):
+    """Every dof's initial velocity along the first mode, scaled so that the tip swings about `tip`."""
+    v0 = np.zeros(2 * sim.disc.mesh.n_points)
+    v0[np.asarray(sim.equations.free)] = mode
+    return v0 * tip * omega / np.max(np.abs(v0))
+
+
+def _tip(sim, X, u):
+    return np.asarray([sim.tracked(X, jnp.asarray(ui))["tip"][1] - H / 2 for ui in u])
+
+
+def test_mass_integrates_the_density_exactly(beam, simulator):
+    """Total mass and a rigid translation's kinetic energy: rho times the area (partition of unity), exact
+    at any Gauss rule.  References: the strip's area L h; the porous translation design's area from its
+    outline (the shoelace formula on its boundary loops sampled 64 points a span, converged to 1e-6)."""
+    sim, X, _, _ = beam
+    rho = 1.3
+    for s, area in ((sim, L * H), (simulator("translation", "superlu"), None)):
+        Xs = s.reference_points(s.init_params())
+        M = mass_blocks(s.equations.solid, quadrature(s.equations.solid, Xs), rho)
+        edofs = s.equations.edofs[:s.equations.elements]
+        if area is None:
+            from nma.geometry.outline import Outline
+            polygon = Outline.of(s.disc.mesh, np.asarray(Xs)).polygon(per_span=64)
+            area = polygon.area
+        v = jnp.tile(jnp.array([0.3, -0.7]), s.disc.mesh.n_points)
+        kinetic = 0.5 * v @ _apply(M, edofs, v)
+        np.testing.assert_allclose(float(kinetic), 0.5 * rho * area * 0.58, rtol=1e-6 if s is not sim else 1e-12)
+        ex = jnp.tile(jnp.array([1.0, 0.0]), s.disc.mesh.n_points)
+        np.testing.assert_allclose(float(ex @ _apply(M, edofs, ex)), rho * area, rtol=1e-6 if s is not sim else 1e-12)
+        sym = np.asarray(M)
+        assert np.allclose(sym, np.swapaxes(sym, 1, 2))
+
+
+def test_first_frequency_of_a_clamped_strip(beam):
+    """The time-stepped strip vibrates at the K/M eigenproblem's first frequency: undamped average
+    acceleration started along the first mode is that mode exactly, at the discrete frequency
+    2 arctan(omega dt / 2) / dt (the trapezoidal rule's period elongation).  Refined (8 control points
+    a span, 4 Gauss points), the eigenproblem meets Euler-Bernoulli's cantilever, omega_1 = 1.8751^2
+    sqrt(E' I / (rho h L^4)) (Rao, Vibration of Continuous Systems, 2007, Table 11.1), with E' =
+    4 mu (mu + kappa) / (2 mu + kappa) the small-strain plane modulus of the model's energy; the rest
+    (shear and rotary inertia, Timoshenko's corrections at slenderness 20, and the 2D clamped root) within 0.5%."""
+    sim, X, omega, modes = beam
+    mat = sim.material_params
+    dt = 2 * np.pi / omega[0] / 20
+    v0 = _mode_velocity(sim, modes[0], omega[0], 1e-4 * L)
+    u, _, info, _ = Dynamics(sim, "newmark", dt=dt, steps=30, waveform=no_actuation, v0=v0, workers=1).run(
+        X, jnp.zeros(1), mat)
+    assert int(info.status) == 1
+    y = _tip(sim, X, u)
+    # a sampled sinusoid y_n = A sin(n theta) has y_{n+1} + y_{n-1} = 2 cos(theta) y_n
+    theta = np.arccos(np.sum(y[1:-1] * (y[2:] + y[:-2])) / (2 * np.sum(y[1:-1] ** 2)))
+    np.testing.assert_allclose(theta, 2 * np.arctan(omega[0] * dt / 2), rtol=1e-8)
+
+    fine = Simulator.from_config(BEAM, fidelity="fine", solver="superlu")
+    w1 = natural_frequencies(fine, fine.reference_points(fine.init_params()), mat, count=1)[0]
+    mu, kappa = fine.disc.solid.material.moduli(jnp.asarray(mat))
+    E_plane = 4 * mu * (mu + kappa) / (2 * mu + kappa)
+    euler_bernoulli = 1.8751040687 ** 2 * np.sqrt(E_plane * H ** 3 / 12 / (H * L ** 4))
+    np.testing.assert_allclose(w1, euler_bernoulli, rtol=5e-3)
+
+
+def test_average_acceleration_conserves_a_linear_systems_energy(beam):
+    """The scheme on the strip's linearised system (K at rest, M), each step solved exactly: the energy
+    1/2 v.M v + 1/2 u.K u is constant to round-off (the trapezoidal rule is symplectic and, for a linear
+    system, conserves its quadratic energy exactly)."""
+    sim, X, omega, _ = beam
+    eqs, mat = sim.equations, sim.material_params
+    quad = quadrature(eqs.solid, X)
+    from nma.solver.equations import tangents_at
+    kel = tangents_at(eqs, X, jnp.zeros(0), mat, jnp.zeros(sim.disc.boundary.n_dofs))
+    M = mass_blocks(eqs.solid, quad, 1.0)
+    edofs = eqs.edofs[:eqs.elements]
+    scheme, dt = Scheme.of("newmark"), 2 * np.pi / omega[0] / 7
+    free = np.asarray(eqs.free)
+    K_apply = lambda x: _apply(kel.elements, edofs, x)  # noqa: E731
+    none = (jnp.zeros((0, 18, 18)), jnp.zeros(0, int), jnp.asarray(0))
+    rng = np.random.default_rng(0)
+    u = np.zeros(2 * sim.disc.mesh.n_points)
+    v = np.zeros_like(u)
+    v[free] = rng.normal(size=len(free))  # every mode, the highest included
+    a = np.zeros_like(u)
+    a[free] = -spla.spsolve(sim.backend.pattern.matrix(Tangents(M, *none)).tocsc(), np.asarray(K_apply(u))[free])
+    energies = []
+    for _ in range(40):
+        inertia = scheme.inertia(u, v, a, K_apply(u), M, jnp.zeros_like(M), edofs, dt)
+        A = sim.backend.pattern.matrix(Tangents(kel.elements + inertia.blocks, *none)).tocsc()
+        u1 = np.zeros_like(u)
+        u1[free] = spla.spsolve(A, np.asarray(inertia.b)[free])
+        v, a = (np.asarray(x) for x in scheme.update(u1, u, v, a, dt))
+        u = u1
+        energies.append(0.5 * v @ _apply(M, edofs, v) + 0.5 * u @ K_apply(u))
+    energies = np.asarray(energies)
+    assert np.max(np.abs(energies / energies[0] - 1)) < 1e-12
+
+
+def test_energy_of_the_nonlinear_strip(beam):
+    """The full model (Neo-Hookean, Newton per step): undamped average acceleration keeps a small
+    vibration's energy to 1e-6 (the geometric nonlinearity at a tip swing of 0.1% of L, and the strain
+    energy's round-off at strains of 1e-5) and a large one's (tip swing 5% of L) bounded, within 0.1%
+    over 5 periods."""
+    sim, X, omega, modes = beam
+    mat = sim.material_params
+    dt = 2 * np.pi / omega[0] / 20
+    for tip, steps, bound in ((1e-3 * L, 20, 1e-6), (0.05 * L, 100, 1e-3)):
+        v0 = _mode_velocity(sim, modes[0], omega[0], tip)
+        u, v, info, _ = Dynamics(sim, "newmark", dt=dt, steps=steps, waveform=no_actuation, v0=v0, workers=1).run(
+            X, jnp.zeros(1), mat)
+        assert int(info.status) == 1
+        E = np.asarray([_energy(sim, X, mat, ui, vi) for ui, vi in zip(u, v)])
+        assert np.max(np.abs(E / E[0] - 1)) < bound, (tip, np.max(np.abs(E / E[0] - 1)))
+
+
+@pytest.mark.parametrize("scheme", ["newmark", "generalised_alpha"])
+def test_second_order_in_the_time_step(beam, scheme):
+    """The tip's position after half a period at dt = T/8, T/16, T/32, against T/128: the error falls 4x
+    per halving (second order; generalised-alpha at rho_inf = 0.5 too, Chung & Hulbert 1993)."""
+    sim, X, omega, modes = beam
+    T = 2 * np.pi / omega[0]
+    v0 = _mode_velocity(sim, modes[0], omega[0], 0.02 * L)
+
+    def tip_at_half_period(n):
+        dyn = Dynamics(sim, scheme, rho_inf=0.5, dt=T / n, steps=n // 2, waveform=no_actuation, v0=v0, workers=1)
+        u, _, info, _ = dyn.run(X, jnp.zeros(1), sim.material_params)
+        assert int(info.status) == 1
+        return _tip(sim, X, u[-1:])[0]
+
+    reference = tip_at_half_period(128)
+    errors = np.abs([tip_at_half_period(n) - reference for n in (8, 16, 32)])
+    orders = np.log2(errors[:-1] / errors[1:])
+    assert np.all(orders > 1.7) and 1.9 < orders[-1] < 2.1, orders
+
+
+BLOCK = {"name": "block", "cell_size": 5.0, "cells": "PP\nPP", "radii_init": 0.45,
+         "groups": [{"name": "top", "segment": [[0, 10], [10, 10]], "actuation": 0, "direction": [0, -1]}],
+         "supports": [{"segment": [[0, 0], [10, 0]], "kind": "clamped"}], "tracked": {"wall": [2.5, 5]}}
+
+
+def test_adjoint_through_time_matches_central_differences():
+    """A loss over 50 steps of a 2 x 2 porous block pressed from the top (generalised-alpha, Rayleigh
+    damping; contact on, its barrier acting in most steps: walls within d_hat): its gradient in the pores'
+    radii, the waveform's coefficients and the material by the adjoint sweep, against central differences
+    along a random direction in all of them at once.  The design is a random, asymmetric one: the
+    symmetric block buckles sideways, to a side that a perturbation of its radii decides (there the
+    trajectory is not differentiable)."""
+    sim = Simulator.from_config(BLOCK, fidelity={"ctrl_per_patch": 5, "quad_points": 2},
+                                solver={"linear": "superlu", "rtol": 1e-12}, contact={"enabled": True, "distance": 0.25})
+    geom, mat = sim.init_params(), jnp.asarray(sim.material_params)
+    geom = {**geom, "radii": jnp.asarray(np.random.default_rng(5).uniform(0.38, 0.46, geom["radii"].shape))}
+    T1 = 2 * np.pi / natural_frequencies(sim, sim.reference_points(geom), mat, count=1)[0]
+    dyn = Dynamics(sim, "generalised_alpha", rho_inf=0.8, dt=T1 / 10, steps=50, alpha=1e-4, beta=0.5,
+                   waveform=Fourier(1, 1, 2 * T1, T1 / 2, 3.0), workers=1)
+    model = sim.disc.solid.contact
+
+    def run(radii, coeffs, mat):
+        X = sim.reference_points({**geom, "radii": radii})
+        u, v, info = dyn.function(X, coeffs, mat)
+        wall = jax.vmap(lambda ui: sim.tracked(X, ui)["wall"])(u)
+        return jnp.sum(wall ** 2) + 1e3 * jnp.sum(v[-10:] ** 2), (u, info)
+
+    x0 = (geom["radii"], jnp.array([1.0, 0.0, 0.0]), mat)
+    (value, (u, info)), grads = jax.value_and_grad(run, argnums=(0, 1, 2), has_aux=True)(*x0)
+    assert int(info.status) == 1 and int(info.cuts) == 0
+    X = np.asarray(sim.reference_points(geom))
+    gaps = np.asarray([contact.smallest_gap(model, X + np.asarray(ui), X) for ui in u])
+    assert np.sum(gaps < model.d_hat) >= 10  # the barrier acts in most of the steps
+    rng = np.random.default_rng(0)
+    direction = (jnp.asarray(rng.normal(size=x0[0].shape)), jnp.asarray(rng.normal(size=3)), mat * rng.normal(size=2))
+    h = 1e-7
+    moved = lambda s: [x + s * d for x, d in zip(x0, direction)]  # noqa: E731
+    (plus, (_, i_plus)), (minus, (_, i_minus)) = run(*moved(h)), run(*moved(-h))
+    assert int(i_plus.cuts) == int(i_minus.cuts) == 0
+    along = sum(float(jnp.sum(g * d)) for g, d in zip(grads, direction))
+    np.testing.assert_allclose(along, (plus - minus) / (2 * h), rtol=1e-6)
+
+
+def test_static_suffices_for_slow_actuation():
+    """An actuation 20x slower than the lowest natural period lags its static response by (1/20)^2 /
+    (1 - (1/20)^2) = 0.25%: the static model is said to suffice; at 3x it is not (12.5%)."""
+    omega = 2 * np.pi / 10.0
+    assert "0.25%" in static_suffices(omega, 200.0)
+    assert static_suffices(omega, 30.0) is None
