@@ -16,7 +16,7 @@ import sys
 import typing
 from pathlib import Path
 
-from nma.schema import (ContactConfig, EvaluateConfig, ExportConfig, Fidelity, LoggerConfig, MaterialConfig, PartConfig,
+from nma.schema import (ContactConfig, DynamicsConfig, EvaluateConfig, ExportConfig, Fidelity, LoggerConfig, MaterialConfig, PartConfig,
                         ModelConfig, OptimConfig, SceneConfig, SolverConfig, TrainerConfig)
 from nma.schema.commands import FitConfig, OutputConfig
 from nma.settings import Schema
@@ -32,7 +32,8 @@ nma/tasks/schemas.py) by `python experiments/settings_reference.py`; do not edit
 """
 GROUPS = [  # (heading, prefix, schema): the training run's groups, then the other commands' own
     ("Material", "material", MaterialConfig), ("Part", "part", PartConfig), ("Fidelity", "fidelity", Fidelity),
-    ("Contact", "contact", ContactConfig), ("Solver", "solver", SolverConfig), ("Model", "model", ModelConfig),
+    ("Contact", "contact", ContactConfig), ("Solver", "solver", SolverConfig),
+    ("Dynamics", "dynamics", DynamicsConfig), ("Model", "model", ModelConfig),
     ("Optimiser", "optim", OptimConfig), ("Trainer", "trainer", TrainerConfig), ("Logger", "logger", LoggerConfig),
     ("Scene", "scene", SceneConfig),
     *[(f"Task {name}", "task", schema) for name, schema in sorted(TASK_SCHEMAS.items())],

@@ -1,10 +1,11 @@
-"""One static solve from the command line.
+"""One static solve from the command line, or with dynamics the actuation applied over time.
 
-    python -m nma.simulate scene=translation actuation=[1.0,-0.5]
+    python -m nma.simulate scene=translation actuation=[1.0,-0.5] [dynamics=newmark]
 
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
-converged, valid, validity, seconds); a value that is not finite is written as null, so the line is
+converged, valid, validity, seconds, natural_frequencies; with dynamics, `dynamics`: nma.dynamics.report);
+a value that is not finite is written as null, so the line is
 always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py: det F
 over the whole material, no boundary curve through itself or another); `validity` has the details.
 Exit codes as in nma/cli.py: 2 for bad input (before any work), 1 if the solve cannot reach full
@@ -94,6 +95,10 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
         "validity": {**state.record(), "resolution": checker.resolution},
         "residual": float(info.residual), "tolerance": float(info.tolerance),
         "seconds": seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
+    from .dynamics import report  # the natural frequencies about this equilibrium; with dynamics, the run in time
+    result.update(report.frequencies(sim, X, mat, s.material.density, d, eq.u))
+    if s.dynamics.enabled:
+        result.update(report.over_time(s, sim, X, d, mat, eq.u, out_dir))
     if s.output.figure:
         png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, X, eq.u,
                                           f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")

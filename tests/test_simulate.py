@@ -34,6 +34,25 @@ def test_simulate_writes_fields_figure_and_json(tmp_path):
                                    f["fields/displacement"][()][:, :2])
     assert "fields.h5:/mesh/cells" in (tmp_path / "fields.xdmf").read_text()
     assert (tmp_path / "deformation.png").stat().st_size > 10_000
+    omega = np.asarray(result["natural_frequencies"])  # small vibrations about the equilibrium (nma.dynamics.modes)
+    assert len(omega) == 3 and np.all(omega > 0) and np.all(np.diff(omega) >= 0)
+    np.testing.assert_allclose(result["natural_periods"], 2 * np.pi / omega)
+
+
+def test_simulate_in_time_says_when_the_static_model_suffices(tmp_path):
+    """The strip's actuation raised over 10000 time units, ~25 of its lowest natural periods (~400): the
+    run says the static model suffices, and its last state (generalised-alpha, the high frequencies
+    damped) is the static equilibrium to within 1% of the motion."""
+    proc = simulate(tmp_path, "scene=strip", "actuation=[1.0,1.0]", "fidelity=fast", "dynamics=generalised_alpha",
+                    "dynamics.rho_inf=0.5", "dynamics.ramp=10000", "dynamics.dt=2000", "dynamics.steps=10")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    dyn = json.loads(proc.stdout.strip().splitlines()[-1])["dynamics"]
+    assert dyn["completed"] and dyn["every_state_physical"] and dyn["time_steps"] == 10
+    assert "the static model gives the same answer" in dyn["static_suffices"]
+    assert "static model gives the same answer" in proc.stderr
+    assert dyn["final_vs_static"] < 0.01
+    with h5py.File(tmp_path / "trajectory.h5") as f:
+        assert f["times"].shape == (11,) and f["u"].shape[:1] == (11,) and f["tracked/top_left"].shape == (11, 2)
 
 
 def test_failed_solve_exits_1_with_a_json_line(tmp_path):

@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 
 from ..solver.equations import Inertia
-
-SCHEMES = ("newmark", "generalised_alpha")
+from .options import SCHEMES
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,23 @@ class Dynamics:
         self._lock = threading.Lock()
         self.function = _differentiable(self)
 
+    @classmethod
+    def from_settings(cls, sim, s, density: float, waveform, X, mat, workers: int | None = None) -> "Dynamics":
+        """From a DynamicsConfig `s` (nma.schema.physics): dt null takes a 20th of the lowest natural period
+        at rest, and a damping ratio becomes alpha = zeta omega, beta = zeta / omega at its frequency (the
+        lowest natural one where none is given)."""
+        from .modes import natural_frequencies
+
+        omega_1 = None
+        if s.dt is None or (s.damping_ratio is not None and s.damping_frequency is None):
+            omega_1 = float(natural_frequencies(sim, X, mat, density, count=1)[0])
+        dt = s.dt if s.dt is not None else 2.0 * np.pi / omega_1 / 20.0
+        alpha, beta = s.alpha, s.beta
+        if s.damping_ratio is not None:
+            omega = s.damping_frequency or omega_1
+            alpha, beta = s.damping_ratio * omega, s.damping_ratio / omega
+        return cls(sim, s.scheme, s.rho_inf, dt, s.steps, density, alpha, beta, waveform, s.max_cuts, workers=workers)
+
     @property
     def times(self) -> np.ndarray:
         return self.dt * np.arange(self.steps + 1)

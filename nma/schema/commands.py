@@ -11,7 +11,7 @@ from omegaconf import MISSING
 from ..errors import ConfigError
 from ..mechanics.options import LAW_NAMES, MATERIAL_RANGES, MODES, STRESS_UNITS
 from ..settings import Schema, bounded, choice, option
-from .physics import ContactConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
+from .physics import ContactConfig, DynamicsConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
 from .scene import SceneConfig
 from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
 from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
@@ -56,13 +56,14 @@ class OutputConfig(Schema):
 
 @dataclass
 class SimulateConfig:
-    """`python -m nma.simulate`: one static solve."""
+    """`python -m nma.simulate`: one static solve, or with dynamics the actuation applied over time."""
     scene: SceneConfig = MISSING
     fidelity: Fidelity = field(default_factory=Fidelity)
     contact: ContactConfig = field(default_factory=ContactConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
     part: PartConfig = field(default_factory=PartConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     actuation: Optional[List[float]] = None   # one value per actuation of the scene; null means all zero
     output: OutputConfig = field(default_factory=OutputConfig)
 

@@ -6,6 +6,7 @@ from typing import Any, ClassVar, Dict, List, Optional
 
 from ..geometry.options import Resolution
 from ..mechanics.options import FORMULATIONS, LAW_NAMES, MATERIAL_RANGES, STRESS_UNITS, NEARLY_INCOMPRESSIBLE, ContactSettings
+from ..dynamics.options import SCHEMES
 from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
 from ..settings import Schema, bounded, choice, like, with_options
@@ -31,6 +32,8 @@ class MaterialConfig(Schema):
     name: Optional[str] = None  # what the material is, in words (a shipped elastomer's product name)
     source: Optional[str] = None  # where the parameters come from: the data and the fit (conf/material/<elastomer>.yaml)
     fit: Dict[str, Any] = field(default_factory=dict, metadata={"doc": "the fit's record (nma.fit): data, range, errors"})
+    density: float = bounded(1.0, "(0, 1e12]", doc="mass per unit area, in the scene's units (stress x time^2 / "
+                             "length^2): what dynamics moves; a static solve does not use it")
     formulation: str = choice("auto", ("auto", *FORMULATIONS), doc="mixed: the volume term at each element's mean "
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy); auto: mixed "
                               f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
@@ -78,6 +81,38 @@ class MaterialConfig(Schema):
         configure_jax()  # float64, as every solve
         return jnp.array([float(self.values[n]) for n in law_of(self.law, self.values).names] + [self.nu],
                          dtype=jnp.float64)
+
+
+@dataclass
+class DynamicsConfig(Schema):
+    """Inertia and damping (nma.dynamics): implicit time stepping in place of static equilibrium.  `off`
+    (the default) is the static model; `dynamics=newmark` or `dynamics=generalised_alpha` moves the scene
+    through time, each step a Newton solve with the static solver's safeguards."""
+    prefix: ClassVar[str] = "dynamics"
+    scheme: str = choice("off", ("off", *SCHEMES), doc="newmark: average acceleration (no numerical damping); "
+                         "generalised_alpha: second order, high frequencies damped to rho_inf")
+    rho_inf: float = bounded(0.8, "[0, 1]", doc="generalised_alpha's spectral radius at infinite frequency (1: none "
+                             "damped, 0: damped at once)")
+    dt: Optional[float] = bounded(None, "(0, inf)", doc="the time step; null: a 20th of the lowest natural period "
+                                  "at rest")
+    steps: int = bounded(100, "[1, 1000000]", doc="time steps")
+    alpha: float = bounded(0.0, "[0, inf)", doc="Rayleigh damping's mass-proportional part, C = alpha M + beta K_0")
+    beta: float = bounded(0.0, "[0, inf)", doc="Rayleigh damping's stiffness-proportional part (K_0: the tangent at rest)")
+    damping_ratio: Optional[float] = bounded(None, "[0, 1]", doc="in place of alpha and beta: this ratio of critical "
+                                             "damping at damping_frequency (alpha = zeta omega, beta = zeta / omega)")
+    damping_frequency: Optional[float] = bounded(None, "(0, inf)", doc="the angular frequency damping_ratio holds at "
+                                                 "(rad per unit time); null: the lowest natural frequency at rest")
+    ramp: Optional[float] = bounded(None, "[0, inf)", doc="nma.simulate: the time over which the actuation rises "
+                                    "(a smootherstep) and then holds; null: the lowest natural period")
+    max_cuts: int = bounded(4, "[0, 20]", doc="a time step that fails is redone in 2, 4, ... 2^max_cuts steps")
+
+    def check(self):
+        if self.damping_ratio is not None and (self.alpha or self.beta):
+            self.fail("damping_ratio", "replaces alpha and beta: give one or the other", self.damping_ratio)
+
+    @property
+    def enabled(self) -> bool:
+        return self.scheme != "off"
 
 
 @dataclass
