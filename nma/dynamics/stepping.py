@@ -46,8 +46,10 @@ def matrices(eqs, scheme, density, alpha, beta, X, mat):
     return M, rayleigh(alpha, beta, M, K0)
 
 
-def internal_force(eqs: Equations, X, mat, u):
-    """The strain energy's gradient at u (flat, every dof)."""
+def internal_force(eqs: Equations, X, mat, u, scheme: Scheme | None = None):
+    """The strain energy's gradient at u (flat, every dof); 0 for a scheme that does not use it (alpha_f 0)."""
+    if scheme is not None and scheme.alpha_f == 0.0:
+        return jnp.zeros_like(u)
     quad = quadrature(eqs.solid, X)
     return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
 
@@ -55,12 +57,12 @@ def internal_force(eqs: Equations, X, mat, u):
 def step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt):
     """The step's Inertia from the state at t_n (flat arrays, every dof)."""
     M, C = matrices(eqs, scheme, density, alpha, beta, X, mat)
-    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u), M, C, eqs.edofs[:eqs.elements], dt)
+    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
 
 
 def _inertia_of(eqs, scheme, X, mat, M, C, u, v, a, dt):
     """step_inertia with the design's mass and damping blocks already computed (the forward sweep's)."""
-    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u), M, C, eqs.edofs[:eqs.elements], dt)
+    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
 
 
 def step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt):

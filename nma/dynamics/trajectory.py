@@ -122,15 +122,13 @@ class Dynamics:
         k = self.kernels
         X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
         M, C = k.matrices(X, mat)
-        kel0 = self.newton.linearised(lambda kk: kk.tangents(X, jnp.zeros(self.A.shape[1]), mat,
-                                                             jnp.zeros(len(self.free))), tangents=lambda kel: kel)
         ws = self.sim.backend.workspace()
         z = (np.asarray(k.full(jnp.zeros(len(self.free)), k.actuation(coeffs, 0.0))), self.v0, np.zeros(self.n))
         us, vs, kept = [z[0]], [z[1]], []
         status, t, substeps, cuts, iterations = Status.CONVERGED, 0.0, 0, 0, 0
         try:
             for _ in range(self.steps):
-                done, failed, its = self._interval(X, coeffs, mat, M, C, kel0, z, t, ws)
+                done, failed, its = self._interval(X, coeffs, mat, M, C, z, t, ws)
                 iterations += its
                 if failed is not None:  # (NewtonInfo, the time of the step that failed)
                     status, t = int(failed[0].status), failed[1]
@@ -157,7 +155,7 @@ class Dynamics:
         return tuple(np.asarray(a) for a in self.kernels.update(jnp.asarray(u1), *(jnp.asarray(x) for x in step.z),
                                                                  step.dt))
 
-    def _interval(self, X, coeffs, mat, M, C, kel0, z, t, ws):
+    def _interval(self, X, coeffs, mat, M, C, z, t, ws):
         """The steps from t to t + dt (in 1, 2, 4, ... equal steps): (steps, None, iterations), or where
         even the finest fails (None, (NewtonInfo, time), iterations)."""
         k, iterations = self.kernels, 0
@@ -169,7 +167,7 @@ class Dynamics:
                 d1 = k.actuation(coeffs, t0 + h)
                 u, v, a = (jnp.asarray(x) for x in zz)
                 inertia = k.inertia(X, mat, M, C, u, v, a, h)
-                start = (u[self.free], u[self.dirichlet], kel0._replace(elements=kel0.elements + inertia.blocks), X)
+                start = (u[self.free], u[self.dirichlet], None, X)
                 u_free, info = self.newton.time_step(X, d1, mat, ws, start, inertia)
                 iterations += int(info.iterations)
                 if int(info.status) != Status.CONVERGED:

@@ -74,8 +74,8 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None, inertia=No
     where the design moved since: the first-order response to the change of design and actuation
     together.  The tolerance is the cold solve's either way (the force scale of the full load, from
     the tangent at rest), so a warm answer meets the same test as a cold one.  A time step (`inertia`,
-    nma.dynamics) starts warm at the previous state, kel_rest its matrix at rest with the inertia's
-    blocks; its force scale is its own out-of-balance force at the start (_step_scales)."""
+    nma.dynamics) starts warm at the previous state (kel_rest unused); its scales come from its first
+    linearisation (_step_scales)."""
     quad = quadrature(eqs.solid, X, check_points=opts.element_bound)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
@@ -89,7 +89,8 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None, inertia=No
         u0, u_D0, kel_rest, X0 = start
         finite = finite & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(u_D0)) & jnp.all(jnp.isfinite(X0))
         p = Problem(quad, u_D, mat, size, u_D0, scalar(1.0), inertia)
-        tol, k_ref, f_ref = (_scales if inertia is None else _step_scales)(eqs, opts, p, kel_rest, u0)
+        # a time step's scales come from its first linearisation (_step_scales), as a cold solve's do
+        tol, k_ref, f_ref = _scales(eqs, opts, p, kel_rest) if inertia is None else (scalar(0.0), scalar(1.0), scalar(0.0))
     status = jnp.where(finite, Status.RUNNING, Status.NONFINITE_INPUT)
     if start is not None and opts.element_bound:
         # a start inverted between Gauss points under this design (it moved since): no bound holds from
@@ -111,7 +112,7 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None, inertia=No
     return p, init
 
 
-def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, u0=None):
+def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
     """The tolerance, the stiffness scale k_ref and the force scale f_ref, from the element tangents at
     rest: f_ref the norm of the linearised out-of-balance force of the full load, k_ref the largest
     diagonal entry."""
@@ -119,11 +120,13 @@ def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, u0=None):
     return _tolerance(eqs, opts, p, kel, f_ref)
 
 
-def _step_scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, u0):
-    """A time step's scales: f_ref the norm of its linearised out-of-balance force at its start (the
-    previous state's residual under this step's inertia, and the boundary's move)."""
-    g0 = eqs.residual(p.quad, u0, p.u_D0, 1.0, p.mat, p.inertia)
-    return _tolerance(eqs, opts, p, kel, jnp.linalg.norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)))
+def _step_scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, g0):
+    """A time step's scales, from its first linearisation (residual g0, tangent kel with the inertia's
+    blocks): f_ref the norm of its linearised out-of-balance force at its start (the previous state's
+    residual under this step's inertia, and the boundary's move), plus the static solve's force scale of
+    the actuation at its end: a step meets at least the test a static solve of that actuation meets."""
+    static = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
+    return _tolerance(eqs, opts, p, kel, jnp.linalg.norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)) + static)
 
 
 def _tolerance(eqs: Equations, opts: NewtonOptions, p: Problem, kel, f_ref):
@@ -140,8 +143,9 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: State, at=None
                                   p.inertia)
                   if at is None else at)
     rnorm = jnp.linalg.norm(g)
-    first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest: the scales come from this tangent
-    tol, k_ref, f_ref = jax.lax.cond(first, lambda _: _scales(eqs, opts, p, kel),
+    first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest, or a time step: the scales come from this tangent
+    scales = (lambda _: _scales(eqs, opts, p, kel)) if p.inertia is None else (lambda _: _step_scales(eqs, opts, p, kel, g))
+    tol, k_ref, f_ref = jax.lax.cond(first, scales,
                                      lambda _: (s.tol, s.k_ref, s.f_ref), None)
     closed = loading.close_step(opts, s, rnorm, tol)
     rhs = loading.step_rhs(eqs, p, closed, g, kel)
