@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock test test-all bench bench-kernels bench-train study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist study-min-feature repro-all settings-reference clean
+.PHONY: help install lock test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist study-min-feature repro-all settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -41,6 +41,9 @@ bench-kernels:      ## one Newton linearisation per scene, elements in cache-siz
 
 bench-train:        ## training-step speed per scene: threads vs one, compile, cache -> outputs/bench/train.json
 	$(PYTHON) experiments/bench_train.py
+
+bench-dynamics:     ## a time step against a static solve; 100 steps forward + adjoint of the translation -> outputs/bench/dynamics.json
+	$(PYTHON) experiments/bench_dynamics.py
 
 study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/ (STUDY_ARGS=--unpinned: the well-posed variants)
 	$(PYTHON) experiments/fidelity_study.py $(STUDY_ARGS)

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..mechanics.energy import quadrature, strain_energy
+from ..solver.status import Status
 from .mass import mass_blocks
 from .modes import dynamic_amplification, natural_frequencies, static_suffices
 from .schemes import _apply
@@ -69,7 +70,9 @@ def over_time(s, sim, X, d, mat, u_static, out_dir: Path) -> dict:
             f[f"tracked/{k}"] = p
     return {"dynamics": {
         "scheme": s.dynamics.scheme, "dt": dyn.dt, "steps": dyn.steps, "ramp": ramp, "completed": int(info.status) == 1,
-        "time_reached": float(info.time), "time_steps": int(info.steps), "cut_intervals": int(info.cuts),
+        "time_reached": float(info.time), "why": None if int(info.status) == 1 else
+        f"the step at time {float(info.time):.6g} failed after {s.dynamics.max_cuts} cuts: {Status.describe(info.status)}",
+        "time_steps": int(info.steps), "cut_intervals": int(info.cuts),
         "newton_iterations": int(info.iterations), "seconds": seconds,
         "lowest_natural_period": period_1, "quasi_static_lag": amplification, "static_suffices": said,
         "final_vs_static": lag, "valid_states": summarise(states), "every_state_physical": all(x.valid for x in states),
