@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist study-min-feature repro-all settings-reference clean
+.PHONY: help install lock test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -91,6 +91,12 @@ repro-digital-mnist: ## digital MNIST: lookup table, network fit, end-to-end fin
 
 repro-shape-matching: ## pore shape matching (with contact): joint vs frozen vs no actuation -> outputs/repro/shape_matching/
 	$(PYTHON) experiments/repro.py shape_matching --baseline-steps 250 $(REPRO_ARGS)
+
+repro-dynamic-follow: ## in time: the pointer follows circles, joint design vs frozen baseline -> outputs/repro/dynamic_follow/
+	$(PYTHON) experiments/repro.py dynamic_follow --baseline-steps 60 $(REPRO_ARGS)
+
+repro-dynamic-energy: ## in time: an impulse's kinetic energy focused in a corner, joint vs frozen -> outputs/repro/dynamic_energy/
+	$(PYTHON) experiments/repro.py dynamic_energy --baseline-steps 60 $(REPRO_ARGS)
 
 study-min-feature:  ## translation and double rotation retrained with a 0.8 mm minimum feature at 2 mm per unit, vs unbounded -> results/*_min_feature/
 	$(PYTHON) experiments/min_feature.py translation

@@ -92,7 +92,10 @@ def summarise_digital_mnist(out: Path):
 def reevaluate(out: Path, run: str, extra: list[str] = (), solve: bool = True) -> None:
     """The compared design re-solved at 14 x 5 (nma.evaluate) -> out/reevaluated.json: the metric where the
     model is finer than any it trained at.  An evaluation nma.evaluate wrote there already is read, not
-    solved again (and with solve=False, --summarise, none is solved)."""
+    solved again (and with solve=False, --summarise, none is solved).  Not the tasks in time: nma.evaluate
+    re-solves equilibria."""
+    if out.name.startswith("dynamic_"):
+        return
     done = sorted((out / run / "evaluate").glob("14x5*.json"))
     if not done and not solve:
         return
@@ -137,7 +140,7 @@ def train(name: str, run_dir: Path, overrides: list[str]) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("name", choices=["translation", "rotation_single", "rotation_double", "shape_matching",
-                                     "digital_mnist"])
+                                     "digital_mnist", "dynamic_follow", "dynamic_energy"])
     ap.add_argument("--baseline-steps", type=int, default=150)
     ap.add_argument("--summarise", action="store_true", help="rewrite the tables and figures from the runs only")
     ap.add_argument("--out", type=Path, help="where the runs go (default outputs/repro/<name>; e.g. "

@@ -46,7 +46,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     on_eval = None
     if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
         on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
-            run_dir / "fields" / f"step_{ev.record['step']:07d}", sim, ev, s.trainer.fields_samples)
+            run_dir / "fields" / f"step_{ev.record['step']:07d}", sim, ev, s.trainer.fields_samples, task)
     evaluation = trainer.fit(on_eval, stop)
     logger.finish()
     if not world.is_root:
@@ -54,7 +54,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
     figures = artefacts.write_figures(run_dir / "figures", trainer, evaluation, X_before, s.trainer.animation_frames,
                                       s.part.scale)
     if s.trainer.fields == "final":
-        artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples)
+        artefacts.write_eval_fields(run_dir / "fields", sim, evaluation, s.trainer.fields_samples, task)
     at_rest, floor = task.rest_metric(sim, trainer.mat), task.frozen_floor()
     metrics = artefacts.write_metrics(run_dir, task, evaluation, trainer.history,
                                       {"freeze_geometry": s.trainer.freeze_geometry, "ranks": world.size,

@@ -27,7 +27,7 @@ BAD_RUN = [
     ("trainer.stepz=3", "trainer.stepz is not a known setting"),
     ("solver=foo", "solver=foo is unknown; choose one of ['auto', 'dense', 'pardiso', 'superlu']"),
     ("scene=translaton", "scene=translaton is unknown; choose one of"),
-    ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'rotation_double', 'rotation_double_spec',"),
+    ("task=juggling", "task=juggling is unknown; choose one of ['digital_mnist', 'energy_focus', 'follow_path', 'rotation_double',"),
     ("solver=dense solver.warm_start=true", "solver.warm_start needs a host linear solver (pardiso, superlu)"),
     ("optim.lr=inf", "optim.lr must be a finite number in (0, inf), got inf"),
     ("optim.lr=nan", "optim.lr must be a finite number in (0, inf), got nan"),

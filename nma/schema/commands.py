@@ -31,6 +31,7 @@ class TrainConfig:
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
     part: PartConfig = field(default_factory=PartConfig)
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
 
     def __post_init__(self):
         if not isinstance(self.task, TaskConfig):
@@ -42,6 +43,15 @@ class TrainConfig:
             self.task.check_scene(self.scene)
         if hasattr(self.task, "check_optim"):
             self.task.check_optim(self.optim)
+        in_time = getattr(self.task, "in_time", False)
+        if in_time and not self.dynamics.enabled:
+            raise ConfigError(f"task {self.task.factory} moves in time: choose dynamics=newmark or "
+                              f"dynamics=generalised_alpha (dynamics.scheme is off)")
+        if in_time:
+            self.task.check_dynamics(self.dynamics)
+        if self.dynamics.enabled and not in_time:
+            raise ConfigError(f"dynamics.scheme={self.dynamics.scheme}: task {self.task.factory} is static (its goal is "
+                              f"an equilibrium); the tasks in time are in docs/reference/tasks.md")
         if self.trainer.min_feature is not None and self.part.scale is None:  # a size in mm needs the part's scale
             raise ConfigError(f"trainer.min_feature={self.trainer.min_feature} (mm) needs part.scale, the millimetres "
                               f"per length unit of the scene (e.g. part.scale=2: a paper cell of 5 units is 10 mm)")

@@ -92,6 +92,38 @@ class Task:
         """The fixed evaluation descriptors (m, k): the same at every evaluation."""
         raise NotImplementedError
 
+    # -- how the task's states are solved (the static default; a task in time: nma.tasks.timed) ----------
+    in_time = False  # True: a sample's state is a trajectory (solve returns one per sample)
+
+    def solve(self, sim, X, d, mat):
+        """A batch's states and how their solves went, from the network's outputs d (n, k): by default the
+        static equilibria of the actuations d (sim.equilibrium_batch), differentiable in X, d and mat."""
+        return sim.equilibrium_batch(X, d, mat)
+
+    def n_outputs(self, sim) -> int:
+        """The network's outputs: by default one actuation per actuated group."""
+        return sim.n_actuations
+
+    def check_states(self, checker, u, ok):
+        """(each sample's Validity, None where its solve failed; the summary metrics.json records) of a
+        batch's states (nma.geometry.validity)."""
+        from ..geometry.validity import summarise
+
+        states = checker.check_batch(np.asarray(u), ok)
+        return states, summarise(states)
+
+    def at_rest(self, X):
+        """What solve gives for one sample where nothing moves."""
+        return jnp.zeros_like(X)
+
+    def states(self, u):
+        """One sample's states (k, n_points, 2), from what solve gave for it (a static sample: one)."""
+        return u[None]
+
+    def shown(self, u):
+        """The state of each sample that figures draw and fields hold (n, n_points, 2)."""
+        return u
+
     higher_is_better = False  # the metric's direction (an error falls, a count of right answers rises)
     outline = False     # True: observe() is a closed curve (figures draw it as one)
     supervised = False  # True: the loss compares actuations with actuation_targets(t); nothing is solved
@@ -164,6 +196,6 @@ class Task:
         """The metric of the initial design with no actuation (nothing moves): the floor of doing nothing."""
         geom = sim.init_params()
         X = sim.reference_points(geom)
-        out = self.observe(sim, geom, X, jnp.zeros_like(X), mat)
+        out = self.observe(sim, geom, X, self.at_rest(X), mat)
         return self.aggregate(jax.vmap(lambda t: self.metric(out, t))(self.eval_set()))
 

@@ -221,7 +221,86 @@ class SpecTask(TaskConfig):
                                   f"the porous cells are P in scene.cells), got {self.pore}")
 
 
+@dataclass
+class TimedTaskConfig(TaskConfig):
+    """A task in time (nma.tasks.timed): the network maps the descriptor to each actuator's waveform, a few
+    Fourier harmonics (nma.dynamics.waveform) bounded by d_max, and the goal is over a window of the
+    trajectory.  Times count the run's time steps (dynamics.dt: by default a 20th of the lowest natural
+    period at rest), so a task means the same at any density or stiffness."""
+    in_time: ClassVar[bool] = True
+    name: str = "translation"
+    harmonics: int = bounded(2, "[1, 20]", doc="Fourier harmonics of each actuator's waveform")
+    period_steps: int = bounded(40, "[2, 100000]", doc="the waveform's period, in time steps")
+    ramp_steps: int = bounded(5, "[0, 100000]", doc="the waveform rises from rest over this many steps (smootherstep)")
+    window: List[int] = bounded(spec="[0, 1000000]", factory=lambda: [20, 100],
+                                doc="[first, last] time step of the goal's window (last: dynamics.steps at most)")
+
+    @property
+    def factory(self) -> str:
+        return self.kind
+
+    def check(self):
+        if len(self.window) != 2 or not self.window[0] <= self.window[1]:
+            self.fail("window", "must be [first, last] time steps with first <= last", self.window)
+
+    def check_dynamics(self, dynamics) -> None:
+        if self.window[1] > dynamics.steps:
+            raise ConfigError(f"task.window {self.window} ends after the run's last time step (dynamics.steps = "
+                              f"{dynamics.steps})")
+
+
+@dataclass
+class FollowPathTask(TimedTaskConfig):
+    """A tracked point follows a circle through its rest position, of radius r and starting direction phi (the
+    descriptor), once per waveform period, over the window: the error is its mean distance from the moving
+    target."""
+    kind: ClassVar[str] = "follow_path"
+    point: str = "pointer"
+    radius: List[float] = bounded(spec="(0, 100]", factory=lambda: [0.5, 1.5], doc="the circles' radii [low, high]")
+    eval_radii: int = bounded(2, "[1, 100]", doc="evaluation: radii evenly over task.radius...")
+    eval_phases: int = bounded(4, "[1, 360]", doc="...times phases evenly over the circle")
+
+    def check(self):
+        super().check()
+        if len(self.radius) != 2 or not self.radius[0] <= self.radius[1]:
+            self.fail("radius", "must be [low, high] with low <= high", self.radius)
+
+    def check_scene(self, scene) -> None:
+        if self.point not in scene.tracked:
+            raise ConfigError(f"task.point {self.point!r} is not tracked by scene {scene.name}; its tracked points "
+                              f"are {sorted(scene.tracked)}")
+
+
+@dataclass
+class EnergyFocusTask(TimedTaskConfig):
+    """An impulse on one side (a fixed pulse of actuation `pulse_actuation`), the other actuators' waveforms
+    from the network: the share of the kinetic energy in a region over the window, maximised by co-designing
+    the pores and the waveforms (energy focusing, after Bordiga et al., Nature Materials 23, 1486, 2024)."""
+    kind: ClassVar[str] = "energy_focus"
+    d_max: float = bounded(1.0, "(0, 5]", doc="the network's actuators' waveforms are bounded by d_max")
+    region: List[float] = bounded(spec="(-inf, inf)", factory=lambda: [15.0, 15.0, 25.0, 25.0],
+                                  doc="[x0, y0, x1, y1]: the elements whose reference centre lies in this box")
+    pulse_actuation: int = bounded(0, "[0, 1000]", doc="the actuation the impulse drives")
+    pulse_amplitude: float = bounded(2.0, "(0, 10]", doc="the impulse's peak displacement")
+    pulse_steps: int = bounded(6, "[2, 100000]", doc="the impulse's duration, in time steps")
+    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [8], doc="the encoder's hidden widths")
+    window: List[int] = bounded(spec="[0, 1000000]", factory=lambda: [30, 40],
+                                doc="[first, last] time step over which the region's share is averaged")
+
+    def check(self):
+        super().check()
+        if len(self.region) != 4 or not (self.region[0] < self.region[2] and self.region[1] < self.region[3]):
+            self.fail("region", "must be [x0, y0, x1, y1] with x0 < x1 and y0 < y1", self.region)
+
+    def check_scene(self, scene) -> None:
+        if self.pulse_actuation >= scene.n_actuations:
+            raise ConfigError(f"task.pulse_actuation {self.pulse_actuation}: scene {scene.name} has "
+                              f"{scene.n_actuations} actuations")
+
+
 TASKS.declare("translation", "nma.tasks.translation:translation", TranslationTask)
+TASKS.declare("follow_path", "nma.tasks.timed:follow_path", FollowPathTask)
+TASKS.declare("energy_focus", "nma.tasks.timed:energy_focus", EnergyFocusTask)
 TASKS.declare("rotation_single", "nma.tasks.rotation:rotation_single", RotationTask)
 TASKS.declare("rotation_double", "nma.tasks.rotation:rotation_double", RotationTask)
 TASKS.declare("shape_matching", "nma.tasks.shape_matching:shape_matching", ShapeMatchingTask)
@@ -235,6 +314,9 @@ def task_schema(task: dict, defaults: list | None = None) -> type:
     list spec_schema), else the task name's; ConfigError if the name is not a task's."""
     if "goal" in task or "spec_schema" in (defaults or []):
         return SpecTask
+    for key, schema in TASK_SCHEMAS.items():  # a task whose YAML names its schema (a task in time)
+        if f"{key}_schema" in (defaults or []):
+            return schema
     name = task.get("name")
     if name not in TASK_SCHEMAS or name == "spec":
         raise ConfigError(f"task {name!r} is not one of {sorted(set(TASK_SCHEMAS) - {'spec'})}, and names no goal "

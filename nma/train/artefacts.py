@@ -32,8 +32,9 @@ def write_metrics(run_dir: Path, task, evaluation: Evaluation, history: list, ex
     return path
 
 
-def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int) -> list[Path]:
-    """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory`."""
+def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int, task=None) -> list[Path]:
+    """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory` (a task in
+    time: its last state; and trajectories.h5, every state of every sample)."""
     X, d, u, out, ts, ok = evaluation.X, evaluation.d, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
     paths, sample = [], sampler(sim.disc, X, samples)
     for i in range(len(ts)):
@@ -43,6 +44,13 @@ def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int
                              attrs={"descriptor": np.asarray(ts[i]), "actuation": np.asarray(d[i]),
                                     "observed": np.asarray(out[i])}, sample=sample)
         paths.append(h5)
+    if evaluation.motion is not None:  # a task in time: every state of every sample
+        import h5py
+
+        with h5py.File(directory / "trajectories.h5", "w") as f:
+            f["times"], f["descriptors"], f["converged"] = task.times, np.asarray(ts), np.asarray(ok)
+            f["u"], f["v"] = np.asarray(evaluation.motion.u), np.asarray(evaluation.motion.v)
+        paths.append(directory / "trajectories.h5")
     return paths
 
 
@@ -219,7 +227,7 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
 
 
 def _draw_target(ax, task, out, t):
-    if np.asarray(out).size % 2 or np.asarray(task.shown_target(out, t)).size % 2:
+    if task.shown_target(out, t) is None or np.asarray(out).size % 2 or np.asarray(task.shown_target(out, t)).size % 2:
         return  # not points in the plane (a task from outside may observe anything): nothing to draw
     tgt = np.asarray(task.shown_target(out, t)).reshape(-1, 2)
     obs = np.asarray(out).reshape(-1, 2)
@@ -315,8 +323,11 @@ def figure_colour_map(path: Path, sim, task, geom):
 def figure_curves(path: Path, task, history: list):
     steps = [h["step"] for h in history]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
-    ax[0].plot(steps, [np.nan if h["loss"] is None else h["loss"] for h in history], lw=1)  # a gap: a skipped step
-    ax[0].set(xlabel="training step", ylabel="training loss (batch)", yscale="log", title="loss of each step")
+    losses = [np.nan if h["loss"] is None else h["loss"] for h in history]  # a gap: a skipped step
+    ax[0].plot(steps, losses, lw=1)
+    positive = all(not np.isfinite(v) or v > 0 for v in losses)  # a loss to maximise a share is negative
+    ax[0].set(xlabel="training step", ylabel="training loss (batch)", yscale="log" if positive else "linear",
+              title="loss of each step")
     ev = [(h["step"], h[task.metric_name]) for h in history if task.metric_name in h]
     if ev:
         ax[1].plot(*zip(*ev), "o-", ms=3)
@@ -346,7 +357,9 @@ def write_figures(figures: Path, trainer, evaluation, X_before, animation_frames
     figure_curves(figures / "curves.png", task, trainer.history)
     if task.coordinates(task.eval_set()) is not None or task.outline:
         figure_errors(figures / "errors.png", task, evaluation)
-    if animation_frames:
+    if task.in_time:  # the trajectory against its target, the energies, one sample moving
+        task.figures(figures, sim, evaluation)
+    elif animation_frames:
         sweep = trainer.evaluate(task.sweep(animation_frames))
         animation_sweep(figures / "sweep.gif", sim, task, sweep, geom, task.sweep_fps)
     if task.outline:

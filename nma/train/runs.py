@@ -267,7 +267,9 @@ def make_trainer(s: TrainConfig, run_dir: Path, config: dict | None = None, worl
     sim = Simulator.from_settings(s, workers)
     task = TASKS.get(s.task.factory)(s.task, sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
-    model = MODELS.get(s.model.name)(hidden=hidden, n_out=sim.n_actuations, d_max=task.d_max,
+    if task.in_time:  # its trajectories: the run's dynamics, the material's density
+        task.attach(sim, s.dynamics, s.material.density)
+    model = MODELS.get(s.model.name)(hidden=hidden, n_out=task.n_outputs(sim), d_max=task.d_max,
                                      out_bias=s.model.out_bias)
     logger = make_logger(s.logger, run_dir, config or {}, run_dir.name, world.is_root)
     # the narrowest ligament: reported for every design, and with trainer.min_feature bounded

@@ -28,13 +28,13 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from ..errors import ConfigError, Stopped, TrainingError
-from ..geometry.validity import StateChecker, summarise
+from ..geometry.validity import StateChecker
 from ..mechanics.energy import inversion_penalty
 if TYPE_CHECKING:  # the settings' types, for the reader: the trainer reads their fields only
     from ..schema import OptimConfig, TrainerConfig
 from ..solver.status import Status, failure
 from . import checkpoint
-from .optimizer import FAILED_STEP_ADVICE, make_optimizer
+from .optimizer import FAILED_STEP_ADVICE, diagnose, make_optimizer, nonfinite_groups
 from .mpi import World
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,7 @@ class Evaluation:
     ts: Any            # the descriptors
     ok: np.ndarray     # (n,) converged
     validity: list     # each converged state's Validity; None where the solve failed
+    motion: Any = None  # a task in time: each sample's trajectory (u is the state it shows)
 
 
 class Trainer:
@@ -124,7 +125,7 @@ class Trainer:
     def _forward(self, params, ts):
         X = self.sim.reference_points(params["geom"])
         d = self.model.apply(params["net"], self.task.net_input(ts))
-        u, info = self.sim.equilibrium_batch(X, d, self.mat)
+        u, info = self.task.solve(self.sim, X, d, self.mat)
         # one at a time: an evaluation set may be large, an observation (the colour display) is not small,
         # and a branch in one runs only where taken (lax.map with a batch_size vmaps, and computes both)
         observe = lambda ui: self.task.observe(self.sim, params["geom"], X, ui, self.mat)
@@ -134,7 +135,7 @@ class Trainer:
     def _observe_at_rest(self, params):
         """What the task reads off the design with no actuation: nothing moves."""
         X = self.sim.reference_points(params["geom"])
-        return self.task.observe(self.sim, params["geom"], X, jnp.zeros_like(X), self.mat)
+        return self.task.observe(self.sim, params["geom"], X, self.task.at_rest(X), self.mat)
 
     def _loss_sum(self, params, ts):
         if self.task.supervised:  # regress the actuations onto given ones; nothing to solve
@@ -147,7 +148,9 @@ class Trainer:
         losses = jax.vmap(self.task.loss)(out, ts)
         if self.cfg.inversion_penalty > 0:  # steer away from states that invert between Gauss points
             margin = self.cfg.inversion_margin
-            penalty = jax.vmap(lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin))(u)
+            one = lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin)  # noqa: E731
+            # a trajectory's: summed over its states
+            penalty = jax.vmap(lambda ui: jnp.sum(jax.vmap(one)(self.task.states(ui))) if self.task.in_time else one(ui))(u)
             losses = losses + self.cfg.inversion_penalty * penalty
         if self.features is not None and self.features.bound is not None and self.cfg.feature_penalty > 0:
             losses = losses + self.cfg.feature_penalty * self.features.penalty(X)  # one design: the same in each sample
@@ -172,8 +175,8 @@ class Trainer:
                                              "inverts": np.sum(status == Status.INVERTS)})
         n_ok, n_nonfinite, n_inverts = (int(round(float(total[k]))) for k in ("converged", "nonfinite", "inverts"))
         if n_nonfinite:
-            raise TrainingError(self._diagnose(step, f"{n_nonfinite} of the batch's actuations or the geometry "
-                                                     f"are not finite, so nothing could be solved"))
+            raise TrainingError(diagnose(self.state["params"], self.ocfg, step, f"{n_nonfinite} of the batch's "
+                                         "actuations or the geometry are not finite, so nothing could be solved"))
         if n_ok == 0:
             return self._skip_failed_step(step, info, t0)
         self._failed_in_a_row = 0
@@ -196,12 +199,12 @@ class Trainer:
         skipped = int(opt_state.notfinite_count)
         if skipped:  # optax.apply_if_finite left the parameters as they were
             rec["skipped_update"] = 1
-            groups = self._nonfinite_groups(mean_grads)
+            groups = nonfinite_groups(mean_grads)
             log.warning("step %d: loss %s, non-finite gradient in %s: update skipped (%d in a row, %d in all)",
                         step + 1, rec["loss"], groups or "none", skipped, int(opt_state.total_notfinite))
             if skipped >= self.cfg.max_nonfinite_steps:
-                raise TrainingError(self._diagnose(step + 1, f"the loss or gradient was not finite for {skipped} "
-                                                             f"steps in a row (in {groups or 'the loss'})"))
+                raise TrainingError(diagnose(self.state["params"], self.ocfg, step + 1, f"the loss or gradient was "
+                                             f"not finite for {skipped} steps in a row (in {groups or 'the loss'})"))
         return rec
 
     def _skip_failed_step(self, step: int, info, t0: float) -> dict:
@@ -220,26 +223,6 @@ class Trainer:
         self.state = {**self.state, "step": step + 1}
         return {"step": step + 1, "loss": None, "failed_solves": self.cfg.batch_size, "failed_step": 1,
                 "seconds": time.perf_counter() - t0}
-
-    @staticmethod
-    def _nonfinite_groups(tree) -> list[str]:
-        groups = {"network": tree["net"], **tree["geom"]}
-        return [k for k, v in groups.items() if not all(np.all(np.isfinite(np.asarray(a)))
-                                                          for a in jax.tree_util.tree_leaves(v))]
-
-    def _diagnose(self, step: int, what: str) -> str:
-        """Name the likely cause of non-finite training: which parameters blew up, at what rates."""
-        params = self.state["params"]
-        size = {"network": params["net"], **params["geom"]}
-        largest = {k: max((float(np.max(np.abs(np.asarray(a)))) for a in jax.tree_util.tree_leaves(v)),
-                          default=0.0) for k, v in size.items()}
-        big = [f"{k} (max |value| {v:.3g})" for k, v in largest.items() if not np.isfinite(v) or v > 1e6]
-        rates = f"optim.lr = {self.ocfg.lr:g}" + "".join(
-            f", optim.lr_scale.{k} = {getattr(self.ocfg.lr_scale, k):g}" for k in params["geom"])
-        cause = (f"parameters that diverged: {', '.join(big)}; the likely cause is a learning rate far too large"
-                 if big else "no parameter group diverged; the likely cause is the task's loss at these "
-                                 "parameters or a learning rate too large")
-        return f"step {step}: {what}. {cause} ({rates}). Lower optim.lr and start a new run."
 
     def eval_subset(self):
         """The evaluation samples of an evaluation before the last: trainer.eval_subset of them, evenly
@@ -262,18 +245,18 @@ class Trainer:
         extras = {k: float(np.mean(self.task.scored(fn, out, ts, ok, rest)))
                   for k, fn in self.task.sample_metrics().items()}
         # is every converged state a physical object? (no inverted material, no wall through a wall)
-        states = StateChecker(self.sim.disc.mesh, np.asarray(X)).check_batch(np.asarray(u), ok)
+        states, checked = self.task.check_states(StateChecker(self.sim.disc.mesh, np.asarray(X)), u, ok)
         invalid = {str(i): v.problems() for i, v in enumerate(states) if v is not None and not v.valid}
         record = {"step": self.state["step"], self.task.metric_name: self.task.aggregate(metric), **extras,
                   "failed_solves": int((~ok).sum()), "failed_samples": np.flatnonzero(~ok).tolist(),
                   "over_converged": self.task.aggregate(metric[ok]) if ok.any() else None,
                   "stopped_inverting": int((status == Status.INVERTS).sum()),  # of the failed, those the element bound stopped
-                  **summarise(states), "invalid_samples": invalid,
+                  **checked, "invalid_samples": invalid,
                   "per_sample": metric.tolist(), "eval_actuations": np.asarray(d).tolist(),
                   **(self.features.report(X) if self.features is not None else {})}
         if self.sim.solver_record() is not None:  # how the run's solves started, and whether warm starts held
             record["warm_starts"] = self.sim.solver_record()
-        return Evaluation(record, X, d, u, out, ts, ok, states)
+        return Evaluation(record, X, d, self.task.shown(u), out, ts, ok, states, u if self.task.in_time else None)
 
     # -- the loop ---------------------------------------------------------------------------------------
     def _stop_if_asked(self, stop, saved: bool) -> None:
