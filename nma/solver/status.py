@@ -134,8 +134,13 @@ class Equilibrium(NamedTuple):
 
 
 def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> SolverError:
-    """The error of one failed solve: how far it got and why."""
+    """The error of one failed solve: how far it got and why (a trajectory's, nma.dynamics: at which time)."""
     status = int(info.status)
+    if hasattr(info, "time"):  # a TrajectoryInfo: its time steps solve as static solves do
+        return SolverError(f"{context}time stepping failed: the step at time {float(info.time):.6g} did not "
+                           f"converge, even cut into smaller steps (dynamics.max_cuts): {Status.describe(status)}; "
+                           f"{int(info.steps)} steps had converged ({int(info.cuts)} intervals cut), "
+                           f"{int(info.iterations)} Newton iterations in all", info)
     msg = (f"{context}Newton solve failed: {Status.describe(status)}; converged up to load factor "
            f"{float(info.load):.4g} of 1 after {int(info.iterations)} iterations, {int(info.load_steps)} "
            f"load steps and {int(info.cuts)} cuts; ")

@@ -1,0 +1,38 @@
+"""Tasks in time (nma.tasks.timed) through the whole run: the trajectories solved, every state checked,
+the figures and the trajectories written."""
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import train_in_process
+
+SHORT = ["scene=translation", "debug=default", "dynamics.steps=8", "task.period_steps=8", "task.ramp_steps=2",
+         "trainer.fields=final"]
+
+
+def test_follow_path_runs_and_checks_every_state(tmp_path):
+    """Two training steps of the pointer following circles (8 time steps, the window the last 5), two
+    evaluation samples: every one of their 2 x 9 states checked, the figures in time drawn."""
+    record = train_in_process(tmp_path, "task=follow_path", *SHORT, "task.window=[4,8]", "task.eval_radii=1",
+                              "task.eval_phases=2")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["metric"] == "mean_path_error" and np.isfinite(metrics["value"]) and metrics["failed_solves"] == 0
+    assert record["checked_states"] == 2 * 9 and record["invalid_states"] == 0
+    for name in ("trajectory.png", "energy.png", "motion.gif", "deformed.png"):
+        assert (tmp_path / "figures" / name).stat().st_size > 5_000, name
+    with h5py.File(tmp_path / "fields" / "trajectories.h5") as f:
+        assert f["u"].shape[:2] == (2, 9) and f["times"].shape == (9,) and np.all(f["converged"][()])
+        assert np.abs(f["u"][()][:, -1]).max() > 0  # the waveforms moved the part
+    assert np.asarray(metrics["eval_actuations"]).shape == (2, 2 * (2 * 2 + 1))  # two actuators' Fourier coefficients
+
+
+@pytest.mark.slow
+def test_energy_focus_share_is_a_fraction(tmp_path):
+    """The impulse moves the part; the region's share of the kinetic energy is a percentage, near the
+    region's share of the material for the initial design (a quarter of the area at most)."""
+    train_in_process(tmp_path, "task=energy_focus", *SHORT, "task.window=[6,8]", "task.pulse_steps=4")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["metric"] == "region_energy_share" and 0.0 < metrics["value"] < 100.0
+    assert metrics["invalid_states"] == 0 and metrics["checked_states"] == 9
