@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError, SolverError
+from ..solver.batch import split_samples, stack_samples
 from ..solver.host import HostNewton
 from ..solver.status import Status
 from .schemes import Scheme
@@ -223,7 +224,7 @@ class Dynamics:
 
     def forward_batch(self, X, coeffs, mat, keep: bool):
         lead = np.shape(coeffs)[:-1]
-        Xs, cs, ms = (_samples(a, lead) for a in (X, coeffs, mat))
+        Xs, cs, ms = (split_samples(a, lead) for a in (X, coeffs, mat))
 
         def one(i):
             u, v, info, kept = self.run(Xs[i], cs[i], ms[i])
@@ -236,11 +237,11 @@ class Dynamics:
                         self._kept.pop(next(iter(self._kept)))
             return u, v, info, np.int64(token)
 
-        return _stack(self._map(one, range(len(cs))), lead)
+        return stack_samples(self._map(one, range(len(cs))), lead)
 
     def backward_batch(self, X, coeffs, mat, u_bar, v_bar, token):
         lead = np.shape(coeffs)[:-1]
-        Xs, cs, ms, ub, vb, tokens = (_samples(a, lead) for a in (X, coeffs, mat, u_bar, v_bar, token))
+        Xs, cs, ms, ub, vb, tokens = (split_samples(a, lead) for a in (X, coeffs, mat, u_bar, v_bar, token))
 
         def one(i):
             with self._lock:
@@ -253,7 +254,7 @@ class Dynamics:
         with self._lock:
             for t in set(tokens.tolist()):
                 self._kept.pop(int(t), None)
-        return _stack(out, lead)
+        return stack_samples(out, lead)
 
 
 def _differentiable(dyn: Dynamics):
@@ -283,12 +284,3 @@ def _differentiable(dyn: Dynamics):
 
     trajectory.defvjp(fwd, bwd)
     return trajectory
-
-
-def _stack(samples: list, lead: tuple):
-    return jax.tree_util.tree_map(lambda *xs: np.stack(xs).reshape(lead + np.shape(xs[0])), *samples)
-
-
-def _samples(a, lead: tuple) -> np.ndarray:
-    a = np.asarray(a)
-    return a.reshape((int(np.prod(lead)),) + a.shape[len(lead):])

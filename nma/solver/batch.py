@@ -49,7 +49,7 @@ class HostBatches:
 
     def _forward_batch(self, X, d, mat, keep: bool):
         lead = np.shape(d)[:-1]
-        Xs, ds, mats = (_samples(a, lead) for a in (X, d, mat))
+        Xs, ds, mats = (split_samples(a, lead) for a in (X, d, mat))
 
         # the starts are taken before the batch runs, its results kept and its audits recorded after, in
         # sample order: what warm starts do does not depend on the threads
@@ -82,7 +82,7 @@ class HostBatches:
                     self.warm.audited(audit)
                 if int(info.status) == Status.CONVERGED:
                     self.warm.keep(d, self._A @ d, u, X)
-        return _stack(solved, lead)
+        return stack_samples(solved, lead)
 
     def _at_rest(self, Xs, ds, mats, starts) -> list[AtRest | None]:
         """Each sample's design linearised at rest, once per design of the batch, where the design has a
@@ -102,7 +102,7 @@ class HostBatches:
 
     def _backward_batch(self, X, d, mat, u_free, u_bar, token):
         lead = np.shape(d)[:-1]
-        Xs, ds, mats, us, bars, tokens = (_samples(a, lead) for a in (X, d, mat, u_free, u_bar, token))
+        Xs, ds, mats, us, bars, tokens = (split_samples(a, lead) for a in (X, d, mat, u_free, u_bar, token))
         with self._lock:  # one workspace per token, even if a token comes more than once (jacrev)
             kept = {int(t): self._kept.pop(int(t), None) for t in set(tokens.tolist())}
         spaces = {t: ws or self.backend.workspace() for t, ws in kept.items()}
@@ -116,15 +116,15 @@ class HostBatches:
         out = self._map(one, range(len(ds)))
         for ws in spaces.values():
             self.backend.release(ws)
-        return _stack(out, lead)
+        return stack_samples(out, lead)
 
 
-def _stack(samples: list, lead: tuple):
+def stack_samples(samples: list, lead: tuple):
     """Per-sample result trees as one tree with batch dimensions `lead`."""
     return jax.tree_util.tree_map(lambda *xs: np.stack(xs).reshape(lead + np.shape(xs[0])), *samples)
 
 
-def _samples(a, lead: tuple) -> np.ndarray:
+def split_samples(a, lead: tuple) -> np.ndarray:
     """A callback argument with batch dimensions `lead` as a flat list of samples."""
     a = np.asarray(a)
     return a.reshape((int(np.prod(lead)),) + a.shape[len(lead):])
