@@ -230,6 +230,11 @@ class EnergyFocus(TimedTask):
     def sample(self, key, n):
         return jnp.zeros((n, 1))
 
+    def net_input(self, t):
+        """A constant input: one task, one waveform (a zero input would leave the network's ReLUs, their
+        biases zero at initialisation, without a gradient)."""
+        return jnp.ones_like(t)
+
     def observe(self, sim, geom, X, m, mat):
         """The region's share of the kinetic energy at each step of the window."""
         M = mass_blocks(sim.disc.solid, quadrature(sim.disc.solid, X), self.density)
