@@ -283,7 +283,8 @@ class EnergyFocusTask(TimedTaskConfig):
     pulse_actuation: int = bounded(0, "[0, 1000]", doc="the actuation the impulse drives")
     pulse_amplitude: float = bounded(2.0, "(0, 10]", doc="the impulse's peak displacement")
     pulse_steps: int = bounded(6, "[2, 100000]", doc="the impulse's duration, in time steps")
-    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [8], doc="the encoder's hidden widths")
+    hidden: List[int] = bounded(spec="[1, 100000]", factory=list, doc="the encoder's hidden widths: none, one "
+                                "task and one waveform, its coefficients d_max tanh(W 1) learned directly")
     window: List[int] = bounded(spec="[0, 1000000]", factory=lambda: [30, 40],
                                 doc="[first, last] time step over which the region's share is averaged")
 

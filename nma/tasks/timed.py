@@ -231,8 +231,8 @@ class EnergyFocus(TimedTask):
         return jnp.zeros((n, 1))
 
     def net_input(self, t):
-        """A constant input: one task, one waveform (a zero input would leave the network's ReLUs, their
-        biases zero at initialisation, without a gradient)."""
+        """A constant input, one: one task, one waveform (a zero input would give the output layer, which
+        has no bias, nothing to scale)."""
         return jnp.ones_like(t)
 
     def observe(self, sim, geom, X, m, mat):
