@@ -8,13 +8,13 @@ import pytest
 
 from conftest import train_in_process
 
-SHORT = ["scene=translation", "debug=default", "dynamics.steps=8", "task.period_steps=8", "task.ramp_steps=2",
-         "trainer.fields=final"]
+SHORT = ["scene=translation", "debug=default", "dynamics.steps=8", "task.period_steps=20", "task.ramp_steps=2",
+         "task.d_max=1", "trainer.fields=final"]
 
 
 def test_follow_path_runs_and_checks_every_state(tmp_path):
-    """Two training steps of the pointer following circles (8 time steps, the window the last 5), two
-    evaluation samples: every one of their 2 x 9 states checked, the figures in time drawn."""
+    """Two training steps of the pointer following circles (8 time steps, the window the last 5, actuations
+    up to 1), two evaluation samples: every one of their 2 x 9 states checked, the figures in time drawn."""
     record = train_in_process(tmp_path, "task=follow_path", *SHORT, "task.window=[4,8]", "task.eval_radii=1",
                               "task.eval_phases=2")
     metrics = json.loads((tmp_path / "metrics.json").read_text())

@@ -47,6 +47,7 @@ def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int
     if evaluation.motion is not None:  # a task in time: every state of every sample
         import h5py
 
+        directory.mkdir(parents=True, exist_ok=True)
         with h5py.File(directory / "trajectories.h5", "w") as f:
             f["times"], f["descriptors"], f["converged"] = task.times, np.asarray(ts), np.asarray(ok)
             f["u"], f["v"] = np.asarray(evaluation.motion.u), np.asarray(evaluation.motion.v)
@@ -173,7 +174,9 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
         else:
             shown = ax.scatter(x[ok], y[ok], c=per[ok], s=40, cmap="viridis", vmin=0.0)
         fig.colorbar(shown, ax=ax, label=f"error [{task.metric_unit}]")
-        ax.set(xlabel=coords[1][0], ylabel=coords[1][1], aspect="equal")
+        # equal axes where the points span both (points on one line would make a degenerate box)
+        span = np.ptp(coords[0], axis=0)
+        ax.set(xlabel=coords[1][0], ylabel=coords[1][1], aspect="equal" if span.min() > 1e-6 * span.max() else "auto")
     if (~ok).any() and coords is not None:
         xy = coords[0][~ok]
         ax.plot(xy[:, 0], xy[:, 1] if xy.shape[1] > 1 else np.zeros(len(xy)), "x", color=ACTUATED, ms=8,
