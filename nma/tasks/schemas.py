@@ -254,7 +254,7 @@ class FollowPathTask(TimedTaskConfig):
     """A tracked point follows a circle through its rest position, of radius r and starting direction phi (the
     descriptor), once per waveform period, over the window: the error is its mean distance from the moving
     target."""
-    kind: ClassVar[str] = "follow_path"
+    kind: str = choice("follow_path", ("follow_path",), doc="the task in time (its registered name)")
     point: str = "pointer"
     radius: List[float] = bounded(spec="(0, 100]", factory=lambda: [0.5, 1.5], doc="the circles' radii [low, high]")
     eval_radii: int = bounded(2, "[1, 100]", doc="evaluation: radii evenly over task.radius...")
@@ -276,7 +276,7 @@ class EnergyFocusTask(TimedTaskConfig):
     """An impulse on one side (a fixed pulse of actuation `pulse_actuation`), the other actuators' waveforms
     from the network: the share of the kinetic energy in a region over the window, maximised by co-designing
     the pores and the waveforms (energy focusing, after Bordiga et al., Nature Materials 23, 1486, 2024)."""
-    kind: ClassVar[str] = "energy_focus"
+    kind: str = choice("energy_focus", ("energy_focus",), doc="the task in time (its registered name)")
     d_max: float = bounded(1.0, "(0, 5]", doc="the network's actuators' waveforms are bounded by d_max")
     region: List[float] = bounded(spec="(-inf, inf)", factory=lambda: [15.0, 15.0, 25.0, 25.0],
                                   doc="[x0, y0, x1, y1]: the elements whose reference centre lies in this box")
@@ -315,8 +315,8 @@ def task_schema(task: dict, defaults: list | None = None) -> type:
     list spec_schema), else the task name's; ConfigError if the name is not a task's."""
     if "goal" in task or "spec_schema" in (defaults or []):
         return SpecTask
-    for key, schema in TASK_SCHEMAS.items():  # a task whose YAML names its schema (a task in time)
-        if f"{key}_schema" in (defaults or []):
+    for key, schema in TASK_SCHEMAS.items():  # a task in time: its YAML names its schema, a run's config its kind
+        if f"{key}_schema" in (defaults or []) or task.get("kind") == key:
             return schema
     name = task.get("name")
     if name not in TASK_SCHEMAS or name == "spec":
