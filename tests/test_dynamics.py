@@ -137,7 +137,9 @@ def test_average_acceleration_conserves_a_linear_systems_energy(beam):
     assert np.max(np.abs(energies / energies[0] - 1)) < 1e-12
 
 
-def test_energy_of_the_nonlinear_strip(beam):
+@pytest.mark.parametrize("tip, steps, bound", [(1e-3 * L, 20, 1e-6),
+                                               pytest.param(0.05 * L, 100, 1e-3, marks=pytest.mark.slow)])
+def test_energy_of_the_nonlinear_strip(beam, tip, steps, bound):
     """The full model (Neo-Hookean, Newton per step): undamped average acceleration keeps a small
     vibration's energy to 1e-6 (the geometric nonlinearity at a tip swing of 0.1% of L, and the strain
     energy's round-off at strains of 1e-5) and a large one's (tip swing 5% of L) bounded, within 0.1%
@@ -145,16 +147,15 @@ def test_energy_of_the_nonlinear_strip(beam):
     sim, X, omega, modes = beam
     mat = sim.material_params
     dt = 2 * np.pi / omega[0] / 20
-    for tip, steps, bound in ((1e-3 * L, 20, 1e-6), (0.05 * L, 100, 1e-3)):
-        v0 = _mode_velocity(sim, modes[0], omega[0], tip)
-        u, v, info, _ = Dynamics(sim, "newmark", dt=dt, steps=steps, waveform=no_actuation, v0=v0, workers=1).run(
-            X, jnp.zeros(1), mat)
-        assert int(info.status) == 1
-        E = np.asarray([_energy(sim, X, mat, ui, vi) for ui, vi in zip(u, v)])
-        assert np.max(np.abs(E / E[0] - 1)) < bound, (tip, np.max(np.abs(E / E[0] - 1)))
+    v0 = _mode_velocity(sim, modes[0], omega[0], tip)
+    u, v, info, _ = Dynamics(sim, "newmark", dt=dt, steps=steps, waveform=no_actuation, v0=v0, workers=1).run(
+        X, jnp.zeros(1), mat)
+    assert int(info.status) == 1
+    E = np.asarray([_energy(sim, X, mat, ui, vi) for ui, vi in zip(u, v)])
+    assert np.max(np.abs(E / E[0] - 1)) < bound, (tip, np.max(np.abs(E / E[0] - 1)))
 
 
-@pytest.mark.parametrize("scheme", ["newmark", "generalised_alpha"])
+@pytest.mark.parametrize("scheme", ["newmark", pytest.param("generalised_alpha", marks=pytest.mark.slow)])
 def test_second_order_in_the_time_step(beam, scheme):
     """The tip's position after half a period at dt = T/8, T/16, T/32, against T/128: the error falls 4x
     per halving (second order; generalised-alpha at rho_inf = 0.5 too, Chung & Hulbert 1993)."""

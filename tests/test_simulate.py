@@ -4,6 +4,7 @@ import sys
 
 import h5py
 import numpy as np
+import pytest
 
 
 def simulate(tmp_path, *overrides):
@@ -39,6 +40,7 @@ def test_simulate_writes_fields_figure_and_json(tmp_path):
     np.testing.assert_allclose(result["natural_periods"], 2 * np.pi / omega)
 
 
+@pytest.mark.slow
 def test_simulate_in_time_says_when_the_static_model_suffices(tmp_path):
     """The strip's actuation raised over 10000 time units, ~25 of its lowest natural periods (~400): the
     run says the static model suffices, and its last state (generalised-alpha, the high frequencies

@@ -2,7 +2,8 @@
 `search` (how far along the step to go, and whether to take it), `cut` (whether the load step has
 failed) and `next_shift` (the diagonal shift of the next step's matrix, K + shift I).  The loop
 (nma.solver.newton.advance) calls them by name, solver.corrector; a new one registers in
-nma.registry.CORRECTORS and needs no edit of the loop.
+nma.registry.CORRECTORS and needs no edit of the loop.  In a time step (nma.dynamics) `search` is also
+given `noise`, the energy's round-off, to widen its acceptance test by.
 
 line_search: the Newton step, shortened as a whole until the energy falls enough (backtracking
 Armijo), a non-descent direction retried with a larger shift.  trust_region: the step of K + shift I,

@@ -205,8 +205,9 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     def correct(_):
         descent = finite & (slope < 0)
         energy = lambda u: eqs.potential(p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat, p.inertia)  # noqa: E731
+        noise = _energy_noise(eqs, p)  # a time step's only: a corrector serves static solves without it
         a, ok, agreement, curvature = corrector.search(eqs, opts, lin.kel, energy, s.u, step, E0, -jnp.abs(slope), a0,
-                                                       _energy_noise(eqs, p))
+                                                       *(() if noise is None else (noise,)))
         return a, (descent | flipped) & ok, descent, agreement, curvature
 
     a, ok, descent, agreement, curvature = jax.lax.cond(predictor, predict, correct, None)
