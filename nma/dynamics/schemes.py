@@ -47,11 +47,16 @@ class Scheme:
         """u*: where u_{n+1} would be with a_{n+1} = 0 in the beta term, a_{n+1} = (u_{n+1} - u*) / (beta dt^2)."""
         return u + dt * v + dt * dt * (0.5 - self.beta) * a
 
+    def blocks(self, M, C, dt):
+        """B, the step's inertia and damping blocks: (1 - am) / ((1 - af) beta dt^2) M + gamma / (beta dt) C."""
+        return ((1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * dt * dt) * M
+                + self.gamma / (self.beta * dt) * C)
+
     def inertia(self, u, v, a, f_n, M, C, edofs, dt) -> Inertia:
         """The step's quadratic term from the state (u, v, a) at t_n (flat, every dof), its internal force
         f_n (flat) and the mass and damping blocks."""
-        am, af, beta, gamma = self.alpha_m, self.alpha_f, self.beta, self.gamma
-        B = (1.0 - am) / ((1.0 - af) * beta * dt * dt) * M + gamma / (beta * dt) * C
+        am, af, gamma = self.alpha_m, self.alpha_f, self.gamma
+        B = self.blocks(M, C, dt)
         # h: the residual's affine part at u = u*, besides the internal force at u_{n+1}
         h = (am / (1.0 - af)) * _apply(M, edofs, a) \
             + _apply(C, edofs, v / (1.0 - af) + dt * (1.0 - gamma) * a) + (af / (1.0 - af)) * f_n

@@ -54,15 +54,15 @@ def internal_force(eqs: Equations, X, mat, u, scheme: Scheme | None = None):
     return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
 
 
-def step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt):
-    """The step's Inertia from the state at t_n (flat arrays, every dof)."""
-    M, C = matrices(eqs, scheme, density, alpha, beta, X, mat)
-    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
-
-
 def _inertia_of(eqs, scheme, X, mat, M, C, u, v, a, dt):
-    """step_inertia with the design's mass and damping blocks already computed (the forward sweep's)."""
+    """The step's Inertia from the state at t_n (flat arrays, every dof) and the design's mass and damping
+    blocks."""
     return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
+
+
+def step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt):
+    """The step's Inertia, its blocks computed from the design (differentiable in X and mat)."""
+    return _inertia_of(eqs, scheme, X, mat, *matrices(eqs, scheme, density, alpha, beta, X, mat), u, v, a, dt)
 
 
 def step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt):

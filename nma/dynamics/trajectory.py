@@ -200,7 +200,7 @@ class Dynamics:
                 u1 = k.full(uf1, d1)
                 un_b, u_b, v_b, a_b = k.update_vjp(u1, u, v, a, step.dt, jnp.asarray(zb[1]), jnp.asarray(zb[2]))
                 u1_bar = zb[0] + np.asarray(un_b)
-                B = k.inertia(X, mat, M, C, u, v, a, step.dt).blocks
+                B = self.scheme.blocks(M, C, step.dt)
                 kel = self.newton.linearised(lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel)
                 lam = ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[self.free]) \
                     if np.any(u1_bar[self.free]) else np.zeros(len(self.free))

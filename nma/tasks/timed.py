@@ -99,12 +99,17 @@ class TimedTask(Task):
     def times(self) -> np.ndarray:
         return self.dynamics.times
 
+    def element_kinetic(self, sim, X, v):
+        """Each element's kinetic energy at every state of velocities v (k, n_points, 2): (k, elements),
+        differentiable in X and v."""
+        M = mass_blocks(sim.disc.solid, quadrature(sim.disc.solid, X), self.density)
+        ve = jnp.asarray(v).reshape(len(v), -1)[:, sim.equations.edofs[:sim.equations.elements]]
+        return 0.5 * jnp.einsum("kea,eab,keb->ke", ve, M, ve)
+
     def kinetic(self, sim, X, v, elements=None):
         """Kinetic energy at every state of a trajectory's velocities v (steps + 1, n_points, 2), of the
         elements weighted by `elements` (all where None)."""
-        M = mass_blocks(sim.disc.solid, quadrature(sim.disc.solid, X), self.density)
-        ve = jnp.asarray(v).reshape(len(v), -1)[:, sim.equations.edofs[:sim.equations.elements]]
-        per = 0.5 * jnp.einsum("kea,eab,keb->ke", ve, M, ve)
+        per = self.element_kinetic(sim, X, v)
         return np.asarray(per.sum(-1) if elements is None else per @ elements)
 
     def figures(self, directory, sim, evaluation) -> list[str]:
@@ -237,15 +242,8 @@ class EnergyFocus(TimedTask):
 
     def observe(self, sim, geom, X, m, mat):
         """The region's share of the kinetic energy at each step of the window."""
-        M = mass_blocks(sim.disc.solid, quadrature(sim.disc.solid, X), self.density)
-        edofs = sim.equations.edofs[:sim.equations.elements]
-
-        def share(v):
-            ve = v.reshape(-1)[edofs]
-            per = 0.5 * jnp.einsum("ea,eab,eb->e", ve, M, ve)
-            return jnp.sum(per * self.elements) / jnp.maximum(jnp.sum(per), 1e-300)
-
-        return jax.vmap(share)(m.v[self.window])
+        per = self.element_kinetic(sim, X, m.v[self.window])
+        return (per @ self.elements) / jnp.maximum(per.sum(-1), 1e-300)
 
     def targets(self, t):
         return jnp.ones(self.cfg.window[1] - self.cfg.window[0] + 1)
