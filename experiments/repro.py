@@ -92,10 +92,8 @@ def summarise_digital_mnist(out: Path):
 def reevaluate(out: Path, run: str, extra: list[str] = (), solve: bool = True) -> None:
     """The compared design re-solved at 14 x 5 (nma.evaluate) -> out/reevaluated.json: the metric where the
     model is finer than any it trained at.  An evaluation nma.evaluate wrote there already is read, not
-    solved again (and with solve=False, --summarise, none is solved).  Not the tasks in time: it would
-    re-solve every trajectory (nma.evaluate does so on request)."""
-    if out.name.startswith("dynamic_"):
-        return
+    solved again (and with solve=False, --summarise, none is solved).  A task in time re-solves every
+    trajectory of its evaluation set, each time step at 14 x 5."""
     done = sorted((out / run / "evaluate").glob("14x5*.json"))
     if not done and not solve:
         return

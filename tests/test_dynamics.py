@@ -180,18 +180,60 @@ BLOCK = {"name": "block", "cell_size": 5.0, "cells": "PP\nPP", "radii_init": 0.4
          "supports": [{"segment": [[0, 0], [10, 0]], "kind": "clamped"}], "tracked": {"wall": [2.5, 5]}}
 
 
-def test_adjoint_through_time_matches_central_differences():
-    """A loss over 50 steps of a 2 x 2 porous block pressed from the top (generalised-alpha, Rayleigh
-    damping; contact on, its barrier acting in most steps: walls within d_hat): its gradient in the pores'
-    radii, the waveform's coefficients and the material by the adjoint sweep, against central differences
-    along a random direction in all of them at once.  The design is a random, asymmetric one: the
-    symmetric block buckles sideways, to a side that a perturbation of its radii decides (there the
-    trajectory is not differentiable)."""
+@pytest.fixture(scope="module")
+def block():
+    """BLOCK with contact, at a random asymmetric design (the symmetric block buckles sideways, to a side
+    that a perturbation of its radii decides: there a trajectory is not differentiable), and its lowest
+    natural period."""
     sim = Simulator.from_config(BLOCK, fidelity={"ctrl_per_patch": 5, "quad_points": 2},
                                 solver={"linear": "superlu", "rtol": 1e-12}, contact={"enabled": True, "distance": 0.25})
     geom, mat = sim.init_params(), jnp.asarray(sim.material_params)
     geom = {**geom, "radii": jnp.asarray(np.random.default_rng(5).uniform(0.38, 0.46, geom["radii"].shape))}
-    T1 = 2 * np.pi / natural_frequencies(sim, sim.reference_points(geom), mat, count=1)[0]
+    return sim, geom, mat, 2 * np.pi / natural_frequencies(sim, sim.reference_points(geom), mat, count=1)[0]
+
+
+def test_a_time_step_begins_from_the_last_steps_linearisation(block):
+    """A time step's first linearisation is the last step's at its end with the Inertia swapped
+    (nma.solver.newton.continue_in_time), not a new pass over the elements: the same energy, residual,
+    tangents (contact's exact ones) and first right-hand side as that pass, to round-off.  Two
+    generalised-alpha steps of the block pressed until its walls are within the barrier's reach, the
+    second half as long."""
+    sim, geom, mat, T1 = block
+    X = sim.reference_points(geom)
+    dyn = Dynamics(sim, "generalised_alpha", rho_inf=0.8, dt=T1 / 4, steps=2, alpha=1e-4, beta=0.5,
+                   waveform=Fourier(1, 1, 2 * T1, T1 / 2, 3.0), workers=1)
+    k, coeffs, free, fixed = dyn.kernels, jnp.array([1.5, 0.0, 0.0]), dyn.free, dyn.dirichlet
+    design, ws = k.design(X, mat), sim.backend.workspace()
+    z = (k.full(jnp.zeros(len(free)), k.actuation(coeffs, 0.0)), jnp.zeros(dyn.n), jnp.zeros(dyn.n))
+    last = None
+    for t, h in ((dyn.dt, dyn.dt), (1.5 * dyn.dt, 0.5 * dyn.dt)):  # the second as a cut interval's, its B another
+        inertia, d = k.inertia(*design, mat, *z, h), k.actuation(coeffs, t)
+        start = (z[0][free], z[0][fixed], None, X)
+        if last is not None:
+            _, s, lin = dyn.newton.linearised(lambda kk: kk.start_step(*last, d, inertia), last[1].kel.which.shape[-1])
+            _, s0, lin0 = dyn.newton.linearised(lambda kk: kk.start_warm(X, d, mat, *start, inertia))
+            assert int(lin0.kel.near) > 0  # contact's blocks are in it
+            scale = float(jnp.max(jnp.abs(lin0.kel.elements)))
+            for a, b in ((lin.kel.elements, lin0.kel.elements), (lin.kel.contact, lin0.kel.contact)):
+                np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-12 * scale)
+            np.testing.assert_array_equal(np.asarray(lin.kel.which), np.asarray(lin0.kel.which))
+            np.testing.assert_allclose(float(lin.energy), float(lin0.energy), rtol=1e-12)
+            for a, b in ((lin.g, lin0.g), (lin.rhs, lin0.rhs)):
+                np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(b))))
+            np.testing.assert_allclose(float(lin.state.tol), float(lin0.state.tol), rtol=1e-10)
+        u_free, info, last = dyn.newton.time_step(X, d, mat, ws, start, inertia, last)
+        assert int(info.status) == 1
+        u1 = k.full(u_free, d)
+        z = (u1, *k.update(u1, *z, h))
+    sim.backend.release(ws)
+
+
+def test_adjoint_through_time_matches_central_differences(block):
+    """A loss over 50 steps of a 2 x 2 porous block pressed from the top (generalised-alpha, Rayleigh
+    damping; contact on, its barrier acting in most steps: walls within d_hat): its gradient in the pores'
+    radii, the waveform's coefficients and the material by the adjoint sweep, against central differences
+    along a random direction in all of them at once (at the fixture's asymmetric design)."""
+    sim, geom, mat, T1 = block
     dyn = Dynamics(sim, "generalised_alpha", rho_inf=0.8, dt=T1 / 10, steps=50, alpha=1e-4, beta=0.5,
                    waveform=Fourier(1, 1, 2 * T1, T1 / 2, 3.0), workers=1)
     model = sim.disc.solid.contact

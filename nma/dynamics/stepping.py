@@ -6,6 +6,8 @@ is the static residual with the step's Inertia (nma.dynamics.schemes).  Its adjo
 (u_bar, v_bar, a_bar) of z_{n+1}, the explicit update (v, a)_{n+1} = U(u_{n+1}, z_n) passes its part
 on to u_{n+1} and z_n; then lambda = K_eff^-1 u_bar_f with K_eff = K(u_{n+1}) + B, and
 (z_n, X, mat, u_D)_bar -= lambda^T dR/d(z_n, X, mat, u_D), u_D also receiving u_bar's prescribed rows.
+R depends on the design X through the quadrature and the mass and damping blocks only, which are the
+same in every step: the sweep sums their cotangents and pulls the sum back to X once (design_vjp).
 """
 from __future__ import annotations
 
@@ -21,53 +23,46 @@ from .schemes import Scheme
 
 
 class StepKernels:
-    """The jitted pieces: matrices, a step's Inertia, the update, the adjoint's two halves."""
+    """The jitted pieces: the design's quadrature and matrices, a step's Inertia, the update, the
+    adjoint's pieces."""
 
     def __init__(self, eqs: Equations, scheme: Scheme, density: float, alpha: float, beta: float, waveform):
         self.eqs, self.scheme = eqs, scheme
-        self.edofs = eqs.edofs[:eqs.elements]
-        args = (eqs, scheme, density, alpha, beta)
-        self.matrices = jax.jit(partial(matrices, *args))
+        design = partial(_design, eqs, scheme, density, alpha, beta)
+        self.design = jax.jit(design)
         self.inertia = jax.jit(partial(_inertia_of, eqs, scheme))
         self.update = jax.jit(scheme.update)
         self.full = jax.jit(lambda u_free, d: eqs.full(u_free, eqs.A @ d).reshape(-1))
         self.actuation = jax.jit(waveform)
-        self.internal_force = jax.jit(partial(internal_force, eqs))
         self.update_vjp = jax.jit(partial(_update_vjp, scheme))
-        self.pullback = jax.jit(partial(_pullback, *args))
+        self.pullback = jax.jit(partial(_pullback, eqs, scheme))
+        self.design_vjp = jax.jit(lambda X, mat, bar: jax.vjp(design, X, mat)[1](bar))
         self.actuation_vjp = jax.jit(lambda c, t, d_bar: jax.vjp(lambda c: waveform(c, t), c)[1](d_bar)[0])
 
 
-def matrices(eqs, scheme, density, alpha, beta, X, mat):
-    """The mass and damping blocks of a design and material."""
+def _design(eqs, scheme, density, alpha, beta, X, mat):
+    """What a step takes from the design: its quadrature (no check points), mass and damping blocks."""
     quad = quadrature(eqs.solid, X)
     M = mass_blocks(eqs.solid, quad, density)
     K0 = stiffness_at_rest(eqs.solid, quad, mat) if beta else jnp.zeros_like(M)
-    return M, rayleigh(alpha, beta, M, K0)
+    return quad, M, rayleigh(alpha, beta, M, K0)
 
 
-def internal_force(eqs: Equations, X, mat, u, scheme: Scheme | None = None):
+def internal_force(eqs: Equations, quad, mat, u, scheme: Scheme | None = None):
     """The strain energy's gradient at u (flat, every dof); 0 for a scheme that does not use it (alpha_f 0)."""
     if scheme is not None and scheme.alpha_f == 0.0:
         return jnp.zeros_like(u)
-    quad = quadrature(eqs.solid, X)
     return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
 
 
-def _inertia_of(eqs, scheme, X, mat, M, C, u, v, a, dt):
-    """The step's Inertia from the state at t_n (flat arrays, every dof) and the design's mass and damping
-    blocks."""
-    return scheme.inertia(u, v, a, internal_force(eqs, X, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
+def _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt):
+    """The step's Inertia from the state at t_n (flat arrays, every dof) and the design's quadrature,
+    mass and damping blocks."""
+    return scheme.inertia(u, v, a, internal_force(eqs, quad, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
 
 
-def step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt):
-    """The step's Inertia, its blocks computed from the design (differentiable in X and mat)."""
-    return _inertia_of(eqs, scheme, X, mat, *matrices(eqs, scheme, density, alpha, beta, X, mat), u, v, a, dt)
-
-
-def step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt):
-    inertia = step_inertia(eqs, scheme, density, alpha, beta, X, mat, u, v, a, dt)
-    return eqs.residual(quadrature(eqs.solid, X), u_free_next, u_D_next, 1.0, mat, inertia)
+def step_residual(eqs, scheme, quad, M, C, mat, u, v, a, u_free_next, u_D_next, dt):
+    return eqs.residual(quad, u_free_next, u_D_next, 1.0, mat, _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt))
 
 
 def _update_vjp(scheme, u_next, u, v, a, dt, v_bar, a_bar):
@@ -76,9 +71,11 @@ def _update_vjp(scheme, u_next, u, v, a, dt, v_bar, a_bar):
     return vjp((v_bar, a_bar))
 
 
-def _pullback(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D_next, dt, lam):
-    """-lambda^T dR/d(X, mat, u, v, a, u_D)."""
-    def residual(X, mat, u, v, a, u_D):
-        return step_residual(eqs, scheme, density, alpha, beta, X, mat, u, v, a, u_free_next, u_D, dt)
+def _pullback(eqs, scheme, design, mat, u, v, a, u_free_next, u_D_next, dt, lam, design_bar):
+    """-lambda^T dR/d(design, mat, u, v, a, u_D), the design's part (quadrature, M, C) added to the sum
+    design_bar: (design_bar, mat_bar, u_bar, v_bar, a_bar, u_D_bar)."""
+    def residual(design, mat, u, v, a, u_D):
+        return step_residual(eqs, scheme, *design, mat, u, v, a, u_free_next, u_D, dt)
 
-    return jax.vjp(residual, X, mat, u, v, a, u_D_next)[1](-lam)
+    bar = jax.vjp(residual, design, mat, u, v, a, u_D_next)[1](-lam)
+    return (jax.tree_util.tree_map(jnp.add, design_bar, bar[0]), *bar[1:])

@@ -6,13 +6,14 @@ load-step cut below solver.min_increment, the element bound, the iteration limit
 ... equal steps, up to 2^max_cuts: the static solver's load-step cuts become time-step cuts.  A step
 that still fails ends the trajectory and says at which time and why; its later states hold the last
 one reached.  Each step starts Newton at the previous state, so its predictor is the linearised
-response to the step's boundary motion and inertia.
+response to the step's boundary motion and inertia; its first linearisation is the last step's final
+one with the Inertia swapped (nma.solver.newton.continue_in_time), not a new pass over the elements.
 
 Backward: the states at the start of every step are kept (3 vectors of 2 n_points floats a step,
 u, v, a, plus the step's free displacements); nothing else.  The adjoint of a step needs the factor of
 K(u_{n+1}) + B at the converged state, which Newton never factorised (its last factor is of the
-iterate before), so the backward sweep factorises it, or refines from the neighbouring step's factor
-(nma.solver.linear.Workspace.adjoint: a few back-substitutions where B, ~M/dt^2, dominates).
+iterate before), so the backward sweep factorises it: the neighbouring step's factor is too far from it
+for iterative refinement to converge in a few back-substitutions.
 """
 from __future__ import annotations
 
@@ -122,14 +123,14 @@ class Dynamics:
         """(u (steps + 1, n_points, 2), v (same), TrajectoryInfo, the steps kept for the adjoint)."""
         k = self.kernels
         X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
-        M, C = k.matrices(X, mat)
+        design = k.design(X, mat)
         ws = self.sim.backend.workspace()
         z = (np.asarray(k.full(jnp.zeros(len(self.free)), k.actuation(coeffs, 0.0))), self.v0, np.zeros(self.n))
         us, vs, kept = [z[0]], [z[1]], []
-        status, t, substeps, cuts, iterations = Status.CONVERGED, 0.0, 0, 0, 0
+        status, t, substeps, cuts, iterations, previous = Status.CONVERGED, 0.0, 0, 0, 0, None
         try:
             for _ in range(self.steps):
-                done, failed, its = self._interval(X, coeffs, mat, M, C, z, t, ws)
+                done, failed, its, previous = self._interval(X, coeffs, mat, design, z, t, ws, previous)
                 iterations += its
                 if failed is not None:  # (NewtonInfo, the time of the step that failed)
                     status, t = int(failed[0].status), failed[1]
@@ -156,20 +157,21 @@ class Dynamics:
         return tuple(np.asarray(a) for a in self.kernels.update(jnp.asarray(u1), *(jnp.asarray(x) for x in step.z),
                                                                  step.dt))
 
-    def _interval(self, X, coeffs, mat, M, C, z, t, ws):
-        """The steps from t to t + dt (in 1, 2, 4, ... equal steps): (steps, None, iterations), or where
-        even the finest fails (None, (NewtonInfo, time), iterations)."""
+    def _interval(self, X, coeffs, mat, design, z, t, ws, previous):
+        """The steps from t to t + dt (in 1, 2, 4, ... equal steps) from the state z that the step
+        `previous` (HostNewton.time_step) ended at: (steps, None, iterations, the last step's end), or
+        where even the finest fails (None, (NewtonInfo, time), iterations, None)."""
         k, iterations = self.kernels, 0
         for level in range(self.max_cuts + 1):
             n = 2 ** level
-            h, zz, done = self.dt / n, z, []
+            h, zz, done, last = self.dt / n, z, [], previous
             for j in range(n):
                 t0 = t + j * h
                 d1 = k.actuation(coeffs, t0 + h)
                 u, v, a = (jnp.asarray(x) for x in zz)
-                inertia = k.inertia(X, mat, M, C, u, v, a, h)
+                inertia = k.inertia(*design, mat, u, v, a, h)
                 start = (u[self.free], u[self.dirichlet], None, X)
-                u_free, info = self.newton.time_step(X, d1, mat, ws, start, inertia)
+                u_free, info, last = self.newton.time_step(X, d1, mat, ws, start, inertia, last)
                 iterations += int(info.iterations)
                 if int(info.status) != Status.CONVERGED:
                     failed = (info, t0)
@@ -179,17 +181,19 @@ class Dynamics:
                 u1 = np.asarray(k.full(u_free, d1))
                 zz = (u1, *self._next(step, u1))
             else:
-                return done, None, iterations
-        return None, failed, iterations
+                return done, None, iterations, last
+        return None, failed, iterations, None
 
     # -- one sample, backward
     def adjoint(self, kept: list, X, coeffs, mat, u_bar, v_bar):
         """(X_bar, coeffs_bar, mat_bar) for cotangents of the states at the steps' times."""
         k = self.kernels
         X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
-        M, C = k.matrices(X, mat)
+        design = k.design(X, mat)
+        design_bar = jax.tree_util.tree_map(jnp.zeros_like, design)
+        M, C = design[1:]
         u_bar, v_bar = (np.asarray(a).reshape(self.steps + 1, -1) for a in (u_bar, v_bar))
-        X_bar, mat_bar, c_bar = np.zeros(X.shape), np.zeros(mat.shape), np.zeros(coeffs.shape)
+        mat_bar, c_bar = np.zeros(mat.shape), np.zeros(coeffs.shape)
         zb = [u_bar[-1].copy(), v_bar[-1].copy(), np.zeros(self.n)]
         grid = len(u_bar) - 1  # the grid time the next state back is at
         ws = self.sim.backend.workspace()
@@ -202,12 +206,14 @@ class Dynamics:
                 u1_bar = zb[0] + np.asarray(un_b)
                 B = self.scheme.blocks(M, C, step.dt)
                 kel = self.newton.linearised(lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel)
-                lam = ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[self.free]) \
-                    if np.any(u1_bar[self.free]) else np.zeros(len(self.free))
-                Xb, mb, ub, vb, ab, uDb = k.pullback(X, mat, u, v, a, uf1, u1[self.dirichlet], step.dt, jnp.asarray(lam))
+                lam = np.zeros(len(self.free))
+                if np.any(u1_bar[self.free]):  # K(u_{n+1}) + B differs from its neighbours' too much to refine from
+                    ws.factorise(kel._replace(elements=kel.elements + B))
+                    lam = ws.solve(u1_bar[self.free])
+                design_bar, mb, ub, vb, ab, uDb = k.pullback(design, mat, u, v, a, uf1, u1[self.dirichlet], step.dt,
+                                                             jnp.asarray(lam), design_bar)
                 d_bar = self.A.T @ (np.asarray(uDb) + u1_bar[self.dirichlet])
                 c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
-                X_bar += np.asarray(Xb)
                 mat_bar += np.asarray(mb)
                 zb = [np.asarray(u_b) + np.asarray(ub), np.asarray(v_b) + np.asarray(vb), np.asarray(a_b) + np.asarray(ab)]
                 if abs(step.t - self.times[grid - 1]) <= 1e-9 * self.dt:  # back at a grid time: its own cotangents
@@ -216,7 +222,8 @@ class Dynamics:
                     zb[1] += v_bar[grid]
         finally:
             self.sim.backend.release(ws)
-        return X_bar, c_bar, mat_bar
+        X_b, mat_b = k.design_vjp(X, mat, design_bar)
+        return np.asarray(X_b), c_bar, mat_bar + np.asarray(mat_b)
 
     # -- batches (pure_callback's broadcast_all)
     def _map(self, fn, items):

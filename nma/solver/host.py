@@ -14,7 +14,7 @@ import numpy as np
 
 from . import saddles
 from .equations import Equations, energy_at, pullback, tangents_at
-from .newton import advance, hold, leave_saddle, linearise, result, setup
+from .newton import advance, continue_in_time, hold, leave_saddle, linearise, result, setup
 from .options import NewtonOptions
 from .status import Status
 from .warm import Audit, Start, WarmStarts
@@ -64,6 +64,7 @@ class Kernels:
         self.start = jax.jit(partial(_start, eqs, opts))
         self.start_warm = jax.jit(partial(_start_warm, eqs, opts))
         self.start_at_rest = jax.jit(partial(_start_at_rest, eqs, opts))
+        self.start_step = jax.jit(partial(_start_step, eqs, opts))
         self.step = jax.jit(partial(_step, eqs, opts))
         self.leave = jax.jit(partial(leave_saddle, eqs, opts))
         self.tangents = jax.jit(partial(tangents_at, eqs))
@@ -138,24 +139,38 @@ class HostNewton:
             self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
         return u, info
 
-    def time_step(self, X, d, mat, ws, start, inertia):
+    def time_step(self, X, d, mat, ws, start, inertia, previous=None):
         """One implicit time step (nma.dynamics): Newton from `start` = (u_free, u_D, kel_rest, X) of the
-        previous state, its potential with the step's Inertia; the factor of its last iterate stays in ws."""
-        return self._solve(X, d, mat, ws, False, start, inertia=inertia)
-
-    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None,
-               inertia=None):
-        kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
-        checked = set()  # converged load steps whose stability was checked (each once)
+        previous state, its potential with the step's Inertia; the factor of its last iterate stays in ws.
+        `previous`: the last step's (Problem, Linearised) at its converged end, where it ended at `start`,
+        whose linearisation this step begins from (its elastic part is this step's; only the Inertia
+        changes).  Returns (u_free, NewtonInfo, this step's (Problem, Linearised) at its end)."""
+        kernels = partial(self.backend.clock.time, "newton_kernels")
         with kernels():
-            if start is not None:
+            if previous is None:
                 p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start, inertia))
+            else:
+                p, s, lin = self.linearised(lambda k: k.start_step(*previous, d, inertia),
+                                            previous[1].kel.which.shape[-1])
+        s, lin = self._iterate(p, s, lin, ws, False)
+        return (*result(s), (p, lin))
+
+    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None):
+        with self.backend.clock.time("newton_kernels"):  # dispatch and wait (XLA runs async)
+            if start is not None:
+                p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start))
             elif rest is not None:
                 p, s, lin = self.linearised(lambda k: k.start_at_rest(X, d, mat, rest.parts))
             else:
                 p, s, lin = self.linearised(lambda k: k.start(X, d, mat))
         # the first iteration's factor, where the batch factorised it for this design
         shared = rest if start is None and rest is not None and rest.factorised else None
+        return result(self._iterate(p, s, lin, ws, escape, budget, shared)[0])
+
+    def _iterate(self, p, s, lin, ws, escape: bool, budget=None, shared: AtRest | None = None):
+        """Newton's iterations from a started solve to its end: (the final state, its last linearisation)."""
+        kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
+        checked = set()  # converged load steps whose stability was checked (each once)
         while True:
             with kernels():
                 status, next_status, shift, predictor, steps, it = jax.device_get(
@@ -193,7 +208,7 @@ class HostNewton:
                 s, lin = self.linearised(lambda k, lin=lin: k.step(p, lin, du), lin.kel.which.shape[-1])
         self.backend.count("newton_solves")
         self.backend.count("newton_iterations", int(s.it))
-        return result(s)
+        return s, lin
 
     def adjoint(self, X, d, mat, u_free, u_bar, ws):
         kernels = partial(self.backend.clock.time, "adjoint_kernels")
@@ -218,6 +233,11 @@ def _start_at_rest(eqs, opts, X, d, mat, at_rest):
 def _start_warm(eqs, opts, X, d, mat, u0, u_D0, kel_rest, X0, inertia=None):
     p, s = setup(eqs, opts, X, d, mat, (u0, u_D0, kel_rest, X0), inertia)
     return p, s, linearise(eqs, opts, p, s)
+
+
+def _start_step(eqs, opts, p, lin, d, inertia):
+    p, s, at = continue_in_time(eqs, opts, p, lin, d, inertia)
+    return p, s, linearise(eqs, opts, p, s, at)
 
 
 def _step(eqs, opts, p, lin, du):

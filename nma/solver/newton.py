@@ -104,12 +104,39 @@ def setup(eqs: Equations, opts: NewtonOptions, X, d, mat, start=None, inertia=No
         x0 = X0 + eqs.full(u0, u_D0)
         crossed = contact.time_of_impact(eqs.solid.contact, quad.walls, x0, X - X0, horizon=1.0) <= 1.0
         status = jnp.where(finite & crossed, Status.WALLS_CROSS, status)
-    init = State(u=u0, lam=scalar(0.0), u_conv=u0, lam_conv=scalar(0.0), dlam=scalar(opts.initial_increment),
+    return p, _initial(opts, u0, status, tol, k_ref, f_ref)
+
+
+def _initial(opts: NewtonOptions, u0, status, tol, k_ref, f_ref) -> State:
+    """A solve's first state: at u0, load factor 0, its first step a predictor."""
+    scalar = lambda v: jnp.asarray(v, u0.dtype)  # noqa: E731
+    return State(u=u0, lam=scalar(0.0), u_conv=u0, lam_conv=scalar(0.0), dlam=scalar(opts.initial_increment),
                  predictor=jnp.asarray(True), shift=scalar(0.0), it=jnp.asarray(0), step_it=jnp.asarray(0),
                  steps=jnp.asarray(0), cuts=jnp.asarray(0), status=status, tol=tol, k_ref=k_ref, rnorm=scalar(jnp.inf),
-                 history=jnp.full(opts.max_iters, jnp.nan, X.dtype), damped=jnp.asarray(0), shift_memory=scalar(0.0),
-                 f_ref=f_ref, inverting=jnp.asarray(False))
-    return p, init
+                 history=jnp.full(opts.max_iters, jnp.nan, u0.dtype), damped=jnp.asarray(0),
+                 shift_memory=scalar(0.0), f_ref=f_ref, inverting=jnp.asarray(False))
+
+
+def continue_in_time(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, d, inertia):
+    """The next time step from the converged end (p, lin) of the last: its Problem (the same design and
+    material, the boundary from its end to eqs.A d, this step's `inertia`), its first State (at that end,
+    as setup starts a time step) and its first linearisation without a new pass over the elements: the
+    strain energy, force and element tangents at that state are the last step's, only the Inertia's terms
+    change (returned as linearise's `at`; contact's blocks are taken again, exact)."""
+    q = Problem(p.quad, eqs.A @ d, p.mat, p.size, p.u_D, jnp.asarray(1.0, p.size.dtype), inertia)
+    u = eqs.full(lin.state.u, p.u_D).reshape(-1)
+    edofs = eqs.edofs[:eqs.elements]
+    energy = lin.energy - p.inertia.energy(edofs, u) + inertia.energy(edofs, u)
+    g = lin.g + (inertia.force(edofs, u) - p.inertia.force(edofs, u))[eqs.free]
+    kel = lin.kel._replace(elements=lin.kel.elements + (inertia.blocks - p.inertia.blocks))
+    if eqs.solid.contact:  # the last tangent's contact blocks may be of the normal stiffness only (_contact_normal)
+        mu = eqs.solid.material.moduli(p.mat)[0]
+        kel = kel._replace(**dict(zip(("contact", "which", "near"), contact.force_and_blocks(
+            eqs.solid.contact, p.quad.walls, p.quad.X + u.reshape(-1, 2), mu, eqs.contact_slots)[2:])))
+    finite = jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(inertia.b))
+    zero = jnp.asarray(0.0, u.dtype)
+    status = jnp.where(finite, Status.RUNNING, Status.NONFINITE_INPUT)
+    return q, _initial(opts, lin.state.u, status, zero, zero + 1.0, zero), (energy, g, kel)
 
 
 def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
