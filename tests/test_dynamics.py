@@ -14,6 +14,7 @@ from nma.dynamics.waveform import Fourier
 from nma.mechanics import contact
 from nma.mechanics.energy import Tangents, quadrature, strain_energy
 from nma.simulator import Simulator
+from nma.solver.status import Status
 
 CELLS = 20  # a clamped strip of 20 solid cells of 5 x 5: L = 100, h = 5 (slenderness 20)
 L, H = 5.0 * CELLS, 5.0
@@ -194,25 +195,29 @@ def block():
 
 def test_a_time_step_begins_from_the_last_steps_linearisation(block):
     """A time step's first linearisation is the last step's at its end with the Inertia swapped
-    (nma.solver.newton.continue_in_time), not a new pass over the elements: the same energy, residual,
-    tangents (contact's exact ones) and first right-hand side as that pass, to round-off.  Two
-    generalised-alpha steps of the block pressed until its walls are within the barrier's reach, the
-    second half as long."""
+    (nma.solver.newton.continue_in_time), not another pass over the elements: the same energy, residual,
+    tangents (contact's exact ones, where the last were not) and first right-hand side as that pass, to
+    round-off.  Three generalised-alpha steps of the block pressed until the barrier acts between its
+    walls, the third half as long."""
     sim, geom, mat, T1 = block
     X = sim.reference_points(geom)
-    dyn = Dynamics(sim, "generalised_alpha", rho_inf=0.8, dt=T1 / 4, steps=2, alpha=1e-4, beta=0.5,
+    dyn = Dynamics(sim, "generalised_alpha", rho_inf=0.8, dt=T1 / 4, steps=3, alpha=1e-4, beta=0.5,
                    waveform=Fourier(1, 1, 2 * T1, T1 / 2, 3.0), workers=1)
     k, coeffs, free, fixed = dyn.kernels, jnp.array([1.5, 0.0, 0.0]), dyn.free, dyn.dirichlet
     design, ws = k.design(X, mat), sim.backend.workspace()
     z = (k.full(jnp.zeros(len(free)), k.actuation(coeffs, 0.0)), jnp.zeros(dyn.n), jnp.zeros(dyn.n))
-    last = None
-    for t, h in ((dyn.dt, dyn.dt), (1.5 * dyn.dt, 0.5 * dyn.dt)):  # the second as a cut interval's, its B another
+    last, acts = None, []
+    # the last step as a cut interval's, half as long: its B another
+    for t, h in ((dyn.dt, dyn.dt), (2 * dyn.dt, dyn.dt), (2.5 * dyn.dt, 0.5 * dyn.dt)):
         inertia, d = k.inertia(*design, mat, *z, h), k.actuation(coeffs, t)
         start = (z[0][free], z[0][fixed], None, X)
         if last is not None:
-            _, s, lin = dyn.newton.linearised(lambda kk: kk.start_step(*last, d, inertia), last[1].kel.which.shape[-1])
             _, s0, lin0 = dyn.newton.linearised(lambda kk: kk.start_warm(X, d, mat, *start, inertia))
-            assert int(lin0.kel.near) > 0  # contact's blocks are in it
+            acts.append(float(jnp.max(jnp.abs(lin0.kel.contact))) > 0)
+            # as if the last tangent's contact blocks were of the normal stiffness only: taken again, exact
+            p1, lin1 = last
+            last = (p1, lin1._replace(kel=lin1.kel._replace(contact=0.5 * lin1.kel.contact)))
+            _, s, lin = dyn.newton.linearised(lambda kk: kk.start_step(*last, d, inertia), last[1].kel.which.shape[-1])
             scale = float(jnp.max(jnp.abs(lin0.kel.elements)))
             for a, b in ((lin.kel.elements, lin0.kel.elements), (lin.kel.contact, lin0.kel.contact)):
                 np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-12 * scale)
@@ -222,10 +227,11 @@ def test_a_time_step_begins_from_the_last_steps_linearisation(block):
                 np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(b))))
             np.testing.assert_allclose(float(lin.state.tol), float(lin0.state.tol), rtol=1e-10)
         u_free, info, last = dyn.newton.time_step(X, d, mat, ws, start, inertia, last)
-        assert int(info.status) == 1
+        assert int(info.status) == Status.CONVERGED
         u1 = k.full(u_free, d)
         z = (u1, *k.update(u1, *z, h))
     sim.backend.release(ws)
+    assert acts[-1]  # the barrier acts in the half step
 
 
 def test_adjoint_through_time_matches_central_differences(block):

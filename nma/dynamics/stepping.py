@@ -41,7 +41,7 @@ class StepKernels:
 
 
 def _design(eqs, scheme, density, alpha, beta, X, mat):
-    """What a step takes from the design: its quadrature (no check points), mass and damping blocks."""
+    """What a step takes from the design: its quadrature, mass and damping blocks."""
     quad = quadrature(eqs.solid, X)
     M = mass_blocks(eqs.solid, quad, density)
     K0 = stiffness_at_rest(eqs.solid, quad, mat) if beta else jnp.zeros_like(M)

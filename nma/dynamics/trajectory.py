@@ -7,7 +7,7 @@ load-step cut below solver.min_increment, the element bound, the iteration limit
 that still fails ends the trajectory and says at which time and why; its later states hold the last
 one reached.  Each step starts Newton at the previous state, so its predictor is the linearised
 response to the step's boundary motion and inertia; its first linearisation is the last step's final
-one with the Inertia swapped (nma.solver.newton.continue_in_time), not a new pass over the elements.
+one with the Inertia swapped (nma.solver.newton.continue_in_time), not another pass over the elements.
 
 Backward: the states at the start of every step are kept (3 vectors of 2 n_points floats a step,
 u, v, a, plus the step's free displacements); nothing else.  The adjoint of a step needs the factor of
@@ -164,14 +164,14 @@ class Dynamics:
         k, iterations = self.kernels, 0
         for level in range(self.max_cuts + 1):
             n = 2 ** level
-            h, zz, done, last = self.dt / n, z, [], previous
+            h, zz, done, end = self.dt / n, z, [], previous
             for j in range(n):
                 t0 = t + j * h
                 d1 = k.actuation(coeffs, t0 + h)
                 u, v, a = (jnp.asarray(x) for x in zz)
                 inertia = k.inertia(*design, mat, u, v, a, h)
                 start = (u[self.free], u[self.dirichlet], None, X)
-                u_free, info, last = self.newton.time_step(X, d1, mat, ws, start, inertia, last)
+                u_free, info, end = self.newton.time_step(X, d1, mat, ws, start, inertia, end)
                 iterations += int(info.iterations)
                 if int(info.status) != Status.CONVERGED:
                     failed = (info, t0)
@@ -181,7 +181,7 @@ class Dynamics:
                 u1 = np.asarray(k.full(u_free, d1))
                 zz = (u1, *self._next(step, u1))
             else:
-                return done, None, iterations, last
+                return done, None, iterations, end
         return None, failed, iterations, None
 
     # -- one sample, backward
@@ -206,10 +206,8 @@ class Dynamics:
                 u1_bar = zb[0] + np.asarray(un_b)
                 B = self.scheme.blocks(M, C, step.dt)
                 kel = self.newton.linearised(lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel)
-                lam = np.zeros(len(self.free))
-                if np.any(u1_bar[self.free]):  # K(u_{n+1}) + B differs from its neighbours' too much to refine from
-                    ws.factorise(kel._replace(elements=kel.elements + B))
-                    lam = ws.solve(u1_bar[self.free])
+                # K(u_{n+1}) + B differs from the neighbouring step's too much to refine from its factor
+                lam = ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[self.free], refine=False)
                 design_bar, mb, ub, vb, ab, uDb = k.pullback(design, mat, u, v, a, uf1, u1[self.dirichlet], step.dt,
                                                              jnp.asarray(lam), design_bar)
                 d_bar = self.A.T @ (np.asarray(uDb) + u1_bar[self.dirichlet])

@@ -141,10 +141,10 @@ class HostNewton:
 
     def time_step(self, X, d, mat, ws, start, inertia, previous=None):
         """One implicit time step (nma.dynamics): Newton from `start` = (u_free, u_D, kel_rest, X) of the
-        previous state, its potential with the step's Inertia; the factor of its last iterate stays in ws.
-        `previous`: the last step's (Problem, Linearised) at its converged end, where it ended at `start`,
-        whose linearisation this step begins from (its elastic part is this step's; only the Inertia
-        changes).  Returns (u_free, NewtonInfo, this step's (Problem, Linearised) at its end)."""
+        previous state, its potential with the step's Inertia.  `previous`: the last step's (Problem,
+        Linearised) at its converged end, which must be `start` under the same X and mat (they are then
+        taken from it): this step begins from that linearisation (its elastic part is this step's; only
+        the Inertia changes).  Returns (u_free, NewtonInfo, this step's (Problem, Linearised) at its end)."""
         kernels = partial(self.backend.clock.time, "newton_kernels")
         with kernels():
             if previous is None:

@@ -67,19 +67,20 @@ class Workspace:
         with self.backend.clock.time("back_substitution"):
             return np.asarray(self.factor.solve(np.asarray(b, dtype=np.float64)), dtype=np.float64)
 
-    def adjoint(self, kel, rhs) -> np.ndarray:
+    def adjoint(self, kel, rhs, refine: bool = True) -> np.ndarray:
         with self.backend.clock.time("adjoint_solve"):
-            return self._adjoint(kel, rhs)
+            return self._adjoint(kel, rhs, refine)
 
-    def _adjoint(self, kel, rhs) -> np.ndarray:
+    def _adjoint(self, kel, rhs, refine: bool) -> np.ndarray:
         """Solve K x = rhs with K from kel (the Hessian at the solution): refine from this workspace's
-        factor (of the last Newton iterate), refactorise only if refinement does not converge."""
+        factor (of the last Newton iterate), refactorise only if refinement does not converge; with
+        refine=False (a factor known to be too far from K), refactorise at once."""
         rhs = np.asarray(rhs, dtype=np.float64)
         scale = np.linalg.norm(rhs)
         if scale == 0.0:  # e.g. a sample masked out of the loss
             return np.zeros_like(rhs)
         A = self.backend.pattern.matrix(kel)
-        if self.factor is not None:
+        if refine and self.factor is not None:
             x = self.solve(rhs)
             for k in range(REFINE_STEPS + 1):
                 r = rhs - self.backend.matvec(A, x)

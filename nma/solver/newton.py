@@ -120,7 +120,7 @@ def _initial(opts: NewtonOptions, u0, status, tol, k_ref, f_ref) -> State:
 def continue_in_time(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, d, inertia):
     """The next time step from the converged end (p, lin) of the last: its Problem (the same design and
     material, the boundary from its end to eqs.A d, this step's `inertia`), its first State (at that end,
-    as setup starts a time step) and its first linearisation without a new pass over the elements: the
+    as setup starts a time step) and its first linearisation without another pass over the elements: the
     strain energy, force and element tangents at that state are the last step's, only the Inertia's terms
     change (returned as linearise's `at`; contact's blocks are taken again, exact)."""
     q = Problem(p.quad, eqs.A @ d, p.mat, p.size, p.u_D, jnp.asarray(1.0, p.size.dtype), inertia)
