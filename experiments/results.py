@@ -25,7 +25,8 @@ README = ROOT / "README.md"
 BEGIN, END = "<!-- results table: python experiments/results.py -->", "<!-- end of results table -->"
 ROWS = [  # (results/<name>, the README's label)
     ("translation", "translation"), ("rotation_single", "rotation, single"), ("rotation_double", "rotation, double"),
-    ("shape_matching", "pore shape matching"), ("digital_mnist", "digital MNIST")]
+    ("shape_matching", "pore shape matching"), ("digital_mnist", "digital MNIST"),
+    ("dynamic_follow", "in time: a circle followed"), ("dynamic_energy", "in time: an impulse focused")]
 
 
 def cpu_model() -> str:
@@ -79,10 +80,11 @@ def _row(name: str, label: str) -> str:
     if fine:  # the states a finer model finds not physical are said beside its value
         unphysical = f"; {fine['invalid_states']} of {fine['samples']} not physical" if fine["invalid_states"] else ""
         again = f" ({fine['value']:#.3g}{unphysical})"
-    unit = "deg" if r["unit"].startswith("deg") else ""
+    unit = "deg" if r["unit"].startswith("deg") else "%" if r["unit"].startswith("%") else ""
     value = lambda v: f"{v:#.3g}{' ' + unit if unit else ''}"  # noqa: E731
     metric = {"mean_pointer_error": "mean pointer error (cell = 5)", "mean_angle_error_deg": "mean angle error",
-              "shape_error": "shape error (mean pore radii)"}.get(r["metric"], r["metric"])
+              "shape_error": "shape error (mean pore radii)", "mean_path_error": "mean path error (cell = 5)",
+              "region_energy_share": "kinetic energy in the target region"}.get(r["metric"], r["metric"])
     return f"| {label} | {metric} | {value(r['joint'])}{again} | {value(r['baseline'])} | {minutes} |"
 
 
