@@ -50,12 +50,26 @@ def stamp(command: list[str], wall_seconds: float) -> dict:
         commit += "-dirty"
     return {"commit": commit, "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "system": platform.platform()},
-            "command": " ".join(command), "wall_seconds": round(wall_seconds, 1)}
+            "command": relative(" ".join(command)), "wall_seconds": round(wall_seconds, 1)}
+
+
+def relative(value):
+    """`value` (a string, or lists and mappings of them) with every path inside the repository
+    written relative to it, also inside a command line: a result names its runs the same on every
+    machine."""
+    if isinstance(value, dict):
+        return {k: relative(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [relative(v) for v in value]
+    if isinstance(value, str):
+        return "." if value == str(ROOT) else value.replace(f"{ROOT}/", "")
+    return value
 
 
 def write(name: str, summary: dict, report: str, figures: list[Path], stamped: dict) -> Path:
     """results/<name>/: result.json (the summary and its stamp), report.md (`report` and the stamp) and
-    copies of `figures`."""
+    copies of `figures`; paths inside the repository relative to it."""
+    summary, report, stamped = relative(summary), relative(report), relative(stamped)
     out = RESULTS / name
     out.mkdir(parents=True, exist_ok=True)
     (out / "result.json").write_text(json.dumps({**summary, "stamp": stamped}, indent=1) + "\n")

@@ -27,8 +27,11 @@ INTRO = """# Settings
 
 Every setting of every config group: its type, default, allowed values and meaning.  Give any of them on
 the command line as `group.setting=value` (`trainer.steps=20`, `material.nu=0.45`); a value outside its
-range is refused before any work, naming the setting.  Generated from the schema (nma/schema/,
-nma/tasks/schemas.py) by `python experiments/settings_reference.py`; do not edit by hand.
+range is refused before any work, naming the setting.  So is a setting given where the rest of the
+config leaves it unused (a `contact` setting with contact off, a `dynamics` one with dynamics off,
+`part.thickness` without `part.scale`), naming what would make it matter (nma/schema/effect.py).
+Generated from the schema (nma/schema/, nma/tasks/schemas.py) by
+`python experiments/settings_reference.py`; do not edit by hand.
 """
 GROUPS = [  # (heading, prefix, schema): the training run's groups, then the other commands' own
     ("Material", "material", MaterialConfig), ("Part", "part", PartConfig), ("Fidelity", "fidelity", Fidelity),

@@ -9,8 +9,9 @@
     anything unexpected keeps its traceback (Hydra prints it) and is never reported as bad input
 
 `preflight` composes the command line's config exactly as Hydra will (every job of a --multirun
-sweep), checks it against the schema, and exits 2 on the first error, before Hydra creates a run
-directory.  Under MPI every rank checks and exits, and rank 0 alone prints.
+sweep, saying how far it got where that takes a while), checks it against the schema, and exits 2
+on the first error, before Hydra creates a run directory.  Under MPI every rank checks and exits,
+and rank 0 alone prints.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ from typing import Callable
 from .config import CONF_DIR
 from .errors import ConfigError, SolverError, Stopped, TrainingError
 from .schema import explain, register
+from .sweep import checking, job_overrides  # noqa: F401  (job_overrides: the jobs a sweep launches)
 
 BAD_INPUT, FAILED, SYSTEM = 2, 1, 3
 
@@ -51,8 +53,12 @@ def _one_line(exc: BaseException) -> str:
         options = [o for o in (exc.options or []) if not o.endswith("_schema")]
         if group == "scene" and (CONF_DIR / "task" / f"{name}.yaml").is_file():
             # scene defaults to the task's option name; a task posed in YAML may be named otherwise
-            return (f"task={name} names no scene of its own name (scene={name} is unknown): give its scene, "
-                    f"scene=<one of {options}>")
+            import yaml
+
+            own = (yaml.safe_load((CONF_DIR / "task" / f"{name}.yaml").read_text()) or {}).get("name")
+            which = f"scene={own}" if own in options else f"scene=<one of {options}>"
+            return (f"task={name} names no scene of its own name (scene={name} is unknown): give its "
+                    f"scene, {which}")
         schemas = []
         if group:
             from hydra.core.config_store import ConfigStore
@@ -69,22 +75,6 @@ def _one_line(exc: BaseException) -> str:
 
             return f"{group}={name} is unknown; choose one of {options}{broken_plugins() if group == 'task' else ''}"
     return explain(exc)
-
-
-def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
-    """The override list of every job Hydra's basic sweeper would launch (one without --multirun)."""
-    if not multirun:
-        return [overrides]
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    choices = []
-    for o in OverridesParser.create().parse_overrides(overrides):
-        if o.is_sweep_override():
-            key = o.get_key_element()
-            choices.append([f"{key}={v}" for v in o.sweep_string_iterator()])
-        else:
-            choices.append([o.input_line])
-    return [list(job) for job in itertools.product(*choices)]
 
 
 def compose(config_name: str, overrides: list[str], config_dir: str | None = None, config_path: str | None = None):
@@ -156,7 +146,7 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
     try:
         jobs = job_overrides(args.overrides, args.multirun)
         varying = [i for i in range(len(jobs[0])) if any(job[i] != jobs[0][i] for job in jobs)]
-        for num, overrides in enumerate(jobs):
+        for num, overrides in checking(jobs, args.multirun, rank):  # says how far a long sweep got
             try:
                 # a sweep's job numbers, as Hydra's basic sweeper gives them: its directory resolves
                 cfg = compose(config_name, [*overrides, f"hydra.job.num={num}"] if args.multirun else overrides,

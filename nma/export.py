@@ -36,8 +36,9 @@ from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
 from .geometry.outline import Outline, bezier_segments, loop_spline
-from .errors import ConfigError
+from .errors import ConfigError, SolverError
 from .schema import ExportConfig, build, register
+from .schema.effect import check_export
 
 register()
 
@@ -46,6 +47,7 @@ def validate(cfg: DictConfig) -> ExportConfig:
     from .train.runs import load_run
 
     settings = build(ExportConfig, cfg)
+    check_export(settings)  # what the user gave, before export() fills scale and thickness in
     own = Path(settings.run).resolve()
     if settings.output and own in Path(settings.output).resolve().parents \
             and (own / "export") not in Path(settings.output).resolve().parents:
@@ -194,7 +196,13 @@ def evaluation_states(run_dir) -> dict:
         found = evaluate_at(settings, run, settings.fidelity, settings.solver)
         found, source = {k: found[k] for k in keys}, f"solved again from {path.name}"
     fidelity = settings.fidelity
-    return {"valid": found["invalid_states"] == 0, **found, "step": step, "source": source,
+    # only states that were checked vouch for the design: a failed solve's were not
+    failed, checked = found["failed_solves"], found["checked_states"]
+    valid = found["invalid_states"] == 0 and checked > 0 and failed == 0
+    unchecked = (f"{failed} of the evaluation set's solves failed: their states were not checked"
+                 if failed else None if checked else "no state was checked")
+    return {"valid": valid, **({"unchecked": unchecked} if unchecked else {}), **found,
+            "step": step, "source": source,
             "fidelity": f"{fidelity.ctrl_per_patch} x {fidelity.quad_points}"
                         + (f", grading {fidelity.grading:g}" if fidelity.grading != 1.0 else "")}
 
@@ -301,12 +309,21 @@ def hydra_main(cfg: DictConfig) -> None:
     with cli.exit_codes(run_dir=Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)):
         result = export(validate(cfg))
     states = result.get("evaluation_states")
-    if states and not states["valid"]:
+    if states and states["invalid_states"]:
         from .geometry.validity import describe
 
         logging.getLogger("nma.export").warning("the design is not a physical object in every state of its task: %s",
                                                 describe(states, states["invalid_samples"]))
+    if states and states.get("unchecked") and states["checked_states"]:
+        logging.getLogger("nma.export").warning("the design's states are not all checked: %s",
+                                                states["unchecked"])
     print(json.dumps(json_safe(result), allow_nan=False), flush=True)
+    if states and not states["checked_states"]:  # the check asked for (states=true) says nothing
+        with cli.exit_codes():
+            raise SolverError(f"{result['file']} is written, but no state of its task's evaluation "
+                              f"set was checked: {states['unchecked']} ({states['failed_solves']} "
+                              f"failed solves; {result['report']} says so); states=false exports "
+                              f"without the check")
 
 
 def main() -> None:

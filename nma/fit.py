@@ -13,9 +13,10 @@ The law's incompressible nominal stress (nma.mechanics.laws.nominal_stress) is f
 (scipy.optimize.least_squares, JAX's Jacobian) to the relative residuals (model - data) / max(|data|, 5% of
 the largest stress): every part of the curve counts, the small strains included, and a point near zero
 stress does not dominate.  Several initial guesses are tried (`starts`).  The fitted law must be stable
-(Drucker) over the data's stretches.  The material file holds the parameters, nu, the unit, those
-stretches, the source, and the fit's record (data file and its sha256, columns, points, range, errors);
-one JSON line with the same goes to stdout.
+(Drucker) over the data's stretches; Gent's Jm is bounded where Gent is Neo-Hookean's (gent_jm_max).
+The material file holds the parameters, nu, the unit, those stretches, the source, and the fit's
+record (data file and its sha256, columns, points, range, errors); one JSON line with the same goes to
+stdout.
 """
 from __future__ import annotations
 
@@ -34,55 +35,119 @@ from omegaconf import DictConfig
 from . import cli
 from .config import CONF_DIR
 from .errors import ConfigError
+from .mechanics.options import MODES
 from .schema import build, register
 from .schema.commands import FitConfig
 
 log = logging.getLogger("nma.fit")
 register()
 FLOOR = 0.05  # the residuals' denominator is at least this fraction of the largest measured stress
+GENT_JM_OVER_I1 = 1e3  # Gent's Jm bound over the data's largest I1 - 3 (gent_jm_max)
+
+
+DELIMITERS = ",;\t"
+
+
+def _header(text: str, strain_column: str, stress_column: str):
+    """(rows, index of the header, delimiter): the first row that, split by one of DELIMITERS, names
+    both columns; None where none does."""
+    found, wanted = None, {strain_column, stress_column}
+    for delimiter in DELIMITERS:
+        rows = list(csv.reader(io.StringIO(text), delimiter=delimiter))
+        head = next((i for i, r in enumerate(rows) if wanted <= {c.strip() for c in r}), None)
+        if head is not None and (found is None or head < found[1]):
+            found = (rows, head, delimiter)
+    return found
+
+
+def _number(cell: str, delimiter: str) -> float:
+    """A cell's number; a decimal comma is one where commas do not separate the cells."""
+    cell = cell.strip()
+    return float(cell.replace(",", ".") if delimiter != "," else cell)
 
 
 def read(path, strain_column: str, stress_column: str, mode: str, max_strain: float | None):
-    """(modes, stretches, stresses) from a CSV: the rows after the first that names both columns (its
-    delimiter sniffed), each with numbers in both; `mode` where the file has no `mode` column."""
+    """(modes, stretches, stresses) from a CSV: the rows after the first that names both columns
+    (split by a comma, semicolon or tab), each with numbers in both; `mode` where the file has no
+    `mode` column.  The data's problems (a number not finite, a strain at or below -1, too few
+    points, a stress of the other sign, a constant stress, a stress that falls as the strain grows)
+    are refused, each in one line."""
+    if mode not in MODES:
+        raise ConfigError(f"mode must be one of {list(MODES)}, got {mode!r}")
+    if max_strain is not None and not float(max_strain) > 0:
+        raise ConfigError(f"max_strain must be a positive number or null, got {max_strain!r}")
     text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
-    try:
-        dialect = csv.Sniffer().sniff(text[:4096], delimiters=",;\t")
-    except csv.Error:
-        dialect = csv.excel
-    rows = list(csv.reader(io.StringIO(text), dialect))
-    head = next((i for i, r in enumerate(rows) if strain_column in [c.strip() for c in r]
-                 and stress_column in [c.strip() for c in r]), None)
-    if head is None:
-        raise ConfigError(f"data={path}: no row names both columns strain_column={strain_column!r} and "
-                          f"stress_column={stress_column!r}")
+    found = _header(text, strain_column, stress_column)
+    if found is None:
+        raise ConfigError(f"data={path}: no row names both columns strain_column={strain_column!r} "
+                          f"and stress_column={stress_column!r} (cells split by a comma, semicolon "
+                          "or tab)")
+    rows, head, delimiter = found
     names = [c.strip() for c in rows[head]]
-    e, s, m = names.index(strain_column), names.index(stress_column), names.index("mode") if "mode" in names else None
+    e, s = names.index(strain_column), names.index(stress_column)
+    m = names.index("mode") if "mode" in names else None
     modes, strains, stresses = [], [], []
-    for r in rows[head + 1:]:
+    for line, r in enumerate(rows[head + 1:], start=head + 2):
         try:
-            strain, stress = float(r[e]), float(r[s])
+            strain, stress = _number(r[e], delimiter), _number(r[s], delimiter)
         except (ValueError, IndexError):
             continue
-        if not (np.isfinite(strain) and np.isfinite(stress)) or strain <= -1.0 or strain == 0.0:
-            continue
-        if max_strain is not None and abs(strain) > max_strain:
+        for column, cell in ((strain_column, r[e]), (stress_column, r[s])):
+            if not np.isfinite(_number(cell, delimiter)):
+                raise ConfigError(f"data={path}: row {line} has {column} {cell.strip()!r}: every "
+                                  "number must be finite (mend or delete the row)")
+        if strain <= -1.0:
+            raise ConfigError(f"data={path}: row {line} has {strain_column} {strain:g}: an "
+                              "engineering strain must exceed -1 (a stretch above 0)")
+        if strain == 0.0 or (max_strain is not None and abs(strain) > max_strain):
             continue
         modes.append(r[m].strip() if m is not None else mode)
         strains.append(strain)
         stresses.append(stress)
-    unknown = sorted(set(modes) - {"uniaxial", "biaxial", "planar"})
+    unknown = sorted(set(modes) - set(MODES))
     if unknown:
-        raise ConfigError(f"data={path}: column mode holds {unknown}; each row's must be uniaxial, biaxial or planar")
+        raise ConfigError(f"data={path}: column mode holds {unknown}; each row's must be uniaxial, "
+                          "biaxial or planar")
+    upto = f" up to max_strain={max_strain:g}" if max_strain is not None else ""
     if len(strains) < 3:
-        raise ConfigError(f"data={path}: {len(strains)} rows with numbers in both columns"
-                          + (f" up to max_strain={max_strain:g}" if max_strain is not None else "")
-                          + "; a fit needs at least 3")
-    against = int(np.sum(np.asarray(strains) * np.asarray(stresses) < 0))
-    if against:  # a stretched specimen pulls back, a compressed one pushes
-        raise ConfigError(f"data={path}: {against} of {len(strains)} rows have a stress of the other sign than their "
-                          f"strain; check stress_column={stress_column!r} (tension is positive in both)")
-    return np.asarray(modes), 1.0 + np.asarray(strains), np.asarray(stresses)
+        raise ConfigError(f"data={path}: {len(strains)} rows with numbers in both columns{upto}; a "
+                          "fit needs at least 3")
+    return _curve(path, stress_column, upto, np.asarray(modes), np.asarray(strains),
+                  np.asarray(stresses))
+
+
+def _curve(path, stress_column, upto, modes, strains, stresses):
+    """(modes, stretches, stresses) of the rows a law can follow: a row whose stress is of the other
+    sign than its strain but within FLOOR of the largest stress (a test's offset about zero at its
+    start) is left out.  Refuses, naming the problem, fewer than 3 distinct points, a significant
+    stress of the other sign, a constant stress, a test whose stress does not grow with its
+    strain."""
+    against = strains * stresses < 0  # a stretched specimen pulls back, a compressed one pushes
+    if np.any(against):
+        if np.any(against & (np.abs(stresses) > FLOOR * np.max(np.abs(stresses)))):
+            raise ConfigError(f"data={path}: {int(np.sum(against))} of {len(strains)} rows have a "
+                              "stress of the other sign than their strain; check "
+                              f"stress_column={stress_column!r} (tension is positive in both)")
+        modes, strains, stresses = modes[~against], strains[~against], stresses[~against]
+    distinct = len(set(zip(modes.tolist(), strains.tolist())))
+    if distinct < 3:
+        raise ConfigError(f"data={path}: {len(strains)} rows at {distinct} distinct "
+                          f"strain{'s' * (distinct != 1)}{upto}; a fit needs the stress at at "
+                          "least 3")
+    if np.ptp(stresses) == 0:
+        raise ConfigError(f"data={path}: the stress is {stresses[0]:g} at every strain; a law's "
+                          f"stress grows with its strain: check stress_column={stress_column!r}")
+    for mode in np.unique(modes):
+        e, s = strains[modes == mode], stresses[modes == mode]
+        if np.ptp(e) == 0:
+            continue
+        rank_e, rank_s = np.argsort(np.argsort(e)), np.argsort(np.argsort(s))
+        if np.ptp(s) == 0 or np.corrcoef(rank_e, rank_s)[0, 1] <= 0:
+            lo, hi = np.argmin(e), np.argmax(e)
+            raise ConfigError(f"data={path}: in the {mode} test the stress does not grow with the "
+                              f"strain (it is {s[lo]:g} at strain {e[lo]:g} and {s[hi]:g} at "
+                              f"strain {e[hi]:g}); check strain_column and stress_column")
+    return modes, 1.0 + strains, stresses
 
 
 def _model(law, modes, stretches):
@@ -107,9 +172,18 @@ def _initial_shear(stretches, stresses):
     return max(abs(slope) / 3.0, 1e-12)
 
 
-def _guesses(law_name: str, names, mu0: float, stretches, starts: int, seed: int = 0):
+def gent_jm_max(i1_max: float) -> float:
+    """Gent's largest Jm for data whose largest first invariant is i1_max: GENT_JM_OVER_I1 times
+    max(i1_max - 3, 1).  Beyond it Gent's stress is Neo-Hookean's within 1 / GENT_JM_OVER_I1 over
+    the data, and its energy, -mu Jm / 2 log(1 - (I1 - 3) / Jm), loses digits as Jm grows (a solve's
+    line search then cannot tell its steps apart)."""
+    return GENT_JM_OVER_I1 * max(float(i1_max) - 3.0, 1.0)
+
+
+def _guesses(law_name: str, names, mu0: float, stretches, starts: int, i1_max: float,
+             seed: int = 0):
     """Initial parameters and bounds of each law: a guess at the data's initial shear modulus mu0, then
-    random ones (Ogden's exponents across [-10, 10])."""
+    random ones (Ogden's exponents across [-10, 10]); Gent's Jm at most gent_jm_max."""
     rng = np.random.default_rng(seed)
     big = np.inf
     if law_name == "mooney_rivlin":
@@ -118,7 +192,8 @@ def _guesses(law_name: str, names, mu0: float, stretches, starts: int, seed: int
         first, lo, hi = [0.5 * mu0, 0.0, 0.0], [0.0, -big, -big], [big, big, big]
     elif law_name == "gent":
         I1 = np.max(stretches ** 2 + 2.0 / stretches)  # uniaxial's largest; any mode's first invariant is of its order
-        first, lo, hi = [mu0, 10.0 * (I1 - 3.0) + 1.0], [0.0, 1.0001 * (I1 - 3.0)], [big, 1e12]
+        first, lo = [mu0, 10.0 * (I1 - 3.0) + 1.0], [0.0, 1.0001 * (I1 - 3.0)]
+        hi = [big, gent_jm_max(i1_max)]
     else:
         terms = len(names) // 2
         alphas = [2.0, -2.0, 5.0][:terms]
@@ -146,11 +221,19 @@ def fit(cfg: FitConfig) -> dict:
     import jax.numpy as jnp
     from scipy.optimize import least_squares
 
-    from .mechanics.laws import drucker_unstable, law_of, ogden_names
+    from .mechanics.laws import drucker_unstable, law_of, mode_stretches, ogden_names
 
     names = ogden_names(cfg.terms) if cfg.law == "ogden" else None
     law = law_of(cfg.law, names or ())
     modes, stretches, data = read(cfg.data, cfg.strain_column, cfg.stress_column, cfg.mode, cfg.max_strain)
+    what = f"law={cfg.law}" + (f" terms={cfg.terms}" if cfg.law == "ogden" else "")
+    distinct = len(set(zip(modes.tolist(), stretches.tolist())))
+    if distinct < len(law.names):
+        raise ConfigError(f"data={cfg.data}: {distinct} distinct points; {what} has "
+                          f"{len(law.names)} parameters {list(law.names)}, which need at least as "
+                          "many")
+    i1_max = max(float(np.max(np.sum(np.asarray(mode_stretches(m, stretches[modes == m])) ** 2,
+                                     axis=0))) for m in np.unique(modes))  # the data's largest I1
     scale = np.maximum(np.abs(data), FLOOR * np.max(np.abs(data)))
     model = _model(law, modes, stretches)
     residual = jax.jit(lambda p: (model(p) - data) / scale)
@@ -159,7 +242,8 @@ def fit(cfg: FitConfig) -> dict:
     # is checked past a principal stretch the data did not reach (biaxial at l_max^-1/2 stretches its third to l_max)
     top = max(float(np.max(stretches)), 1.01)
     stretch_range = [min(float(np.min(stretches)), top ** -0.5, 0.99), top]
-    guesses, bounds = _guesses(law.name, law.names, _initial_shear(stretches, data), stretches, cfg.starts)
+    guesses, bounds = _guesses(law.name, law.names, _initial_shear(stretches, data), stretches,
+                               cfg.starts, i1_max)
     best, unstable = None, None  # the best stable fit; the best fit refused as unstable, and why
     for guess in guesses:
         with np.errstate(all="ignore"):
@@ -183,7 +267,13 @@ def fit(cfg: FitConfig) -> dict:
                                              f"{[round(x, 3) for x in stretch_range]}: {unstable[1]}")
         raise ConfigError(f"law={law.name}: no fit from {cfg.starts} starts is stable with finite stresses at every "
                           f"data point{found}; try another law (Ogden with more terms), or more starts")
-    p = best.x
+    p, notes = best.x, []
+    if law.name == "gent" and p[1] >= 0.99 * bounds[1][1]:
+        notes.append(f"law=gent: Jm is at its bound {bounds[1][1]:.4g} ({GENT_JM_OVER_I1:g} times "
+                     "the data's largest I1 - 3): the data show no limiting stretch, and over them "
+                     f"this Gent is Neo-Hookean's within {100 / GENT_JM_OVER_I1:g}%; "
+                     "material.law=neo_hookean with E = 2 mu (1 + nu) = "
+                     f"{2 * p[0] * (1 + cfg.nu):.6g} is the same material")
     fitted = np.asarray(model(jnp.asarray(p)))
     rel = (fitted - data) / scale
     record = {"data": Path(cfg.data).name, "sha256": hashlib.sha256(Path(cfg.data).read_bytes()).hexdigest(),
@@ -195,9 +285,17 @@ def fit(cfg: FitConfig) -> dict:
                 "parameters": {n: float(v) for n, v in zip(law.names, p)}, "unit": cfg.unit,
                 "stretches": [round(stretch_range[0], 4), round(stretch_range[1], 4)], "source": cfg.source,
                 "fit": record}
+    if notes:
+        record["note"] = " ".join(notes)
     from .schema import MaterialConfig
 
-    MaterialConfig(**material)  # the file must load as a material: ranges, shear modulus, stability
+    try:
+        MaterialConfig(**material)  # it must load as a material: ranges, shear modulus, stability
+    except ConfigError as err:
+        raise ConfigError(f"{what}: the fit {material['parameters']} is not a material a solve can "
+                          f"take: {err}") from None
+    for note in notes:
+        log.warning("%s", note)
     if cfg.output:
         write(Path(cfg.output), material)
     return {"material": material, "output": cfg.output}

@@ -110,13 +110,17 @@ def failed_solves(record: dict) -> str:
 def validate_in(cfg: DictConfig, run_dir: Path):
     """The checked settings of a run in `run_dir`, and the checkpoint a resumed run continues from ((path,
     raw state) or None): a run resumed there keeps the setting fidelity=auto chose for it (its checkpoint
-    records it), whatever fronts were measured since."""
+    records it), whatever fronts were measured since.  A setting given that cannot take effect,
+    and a trainer.min_feature no design can meet, are refused (nma.schema.effect)."""
+    from .schema.effect import check_train
     from .train import checkpoint
 
     found = None
     if str(cfg.trainer.get("resume", "false")).lower() != "false":
         found = checkpoint.load_latest(run_dir / "checkpoints", warn=False)
-    return validate(cfg, chosen_fidelity(found[1]) if found else None), found
+    settings = validate(cfg, chosen_fidelity(found[1]) if found else None)
+    check_train(settings)
+    return settings, found
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")

@@ -8,8 +8,10 @@ converged, valid, validity, seconds, natural_frequencies; with dynamics, `dynami
 a value that is not finite is written as null, so the line is
 always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py: det F
 over the whole material, no boundary curve through itself or another); `validity` has the details.
+With dynamics, `converged` and `valid` are the run in time's too: every time step converged, and
+every state of the trajectory (each checked) is a physical object.
 Exit codes as in nma/cli.py: 2 for bad input (before any work), 1 if the solve cannot reach full
-load (the JSON line says how far it got).
+load or a time step fails (one line on stderr says when and why; the JSON line says how far it got).
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ from omegaconf import DictConfig
 from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
-from .errors import ConfigError
+from .errors import ConfigError, SolverError
 from .schema import SimulateConfig, build, register
 from .schema.physics import model_record, resolve_auto
 
@@ -98,7 +100,17 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .dynamics import report  # the natural frequencies about this equilibrium; with dynamics, the run in time
     result.update(report.frequencies(sim, X, mat, s.material.density, d, eq.u))
     if s.dynamics.enabled:
-        result.update(report.over_time(s, sim, X, d, mat, eq.u, out_dir))
+        where = f"scene {spec.name}, actuation {np.asarray(d).tolist()}"
+        try:
+            result.update(report.over_time(s, sim, X, d, mat, eq.u, out_dir))
+        except SolverError as err:  # nothing moved: the static result stands, the run in time not
+            result.update(converged=False, valid=False, error=f"{where}: {err}")
+        else:
+            dyn = result["dynamics"]
+            # the run's verdict is the run in time's: every state reached, every one physical
+            result["valid"] = state.valid and dyn["every_state_physical"]
+            if not dyn["completed"]:
+                result.update(converged=False, error=f"{where}: {dyn['why']}")
     if s.output.figure:
         png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, X, eq.u,
                                           f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")

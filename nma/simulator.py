@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import checks
 from .errors import ConfigError, SolverError
 from .geometry.discretise import Discretisation, discretise
 from .schema import ContactConfig, Fidelity, MaterialConfig, SolverConfig, build, scene_config, scene_from_config
@@ -266,24 +267,7 @@ class Simulator:
             ("X", X, (self.disc.mesh.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (self.disc.material.n_params,)))))
 
     def _checked(self, name: str, value, shape: tuple):
-        try:
-            value = jnp.asarray(value)
-        except TypeError:
-            raise TypeError(f"equilibrium: {name} must be an array of shape {shape} of real numbers, got "
-                            f"{type(value).__name__} {value!r:.80}") from None
-        if value.shape != shape:
-            raise ValueError(f"equilibrium: {name} must have shape {shape}, got {value.shape}")
-        if not jnp.issubdtype(value.dtype, jnp.floating) and not jnp.issubdtype(value.dtype, jnp.integer):
-            raise TypeError(f"equilibrium: {name} must hold real numbers, got dtype {value.dtype}")
-        if not jax.config.jax_enable_x64:
-            raise RuntimeError("equilibrium: nma solves in float64, which JAX has off: call "
-                               "nma.runtime.configure_jax() before any JAX operation")
-        # a concrete value is checked here (in numpy: inside a trace a jnp operation would be staged); a
-        # traced one's solve ends at once with NONFINITE_INPUT
-        if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
-            bad = np.argwhere(~np.isfinite(np.asarray(value)))
-            got = np.asarray(value).tolist() if value.size <= 8 else f"{len(bad)} entries that are not, the first at {bad[0].tolist()}"
-            raise ValueError(f"equilibrium: {name} must be finite, got {got}")
+        value = checks.array("equilibrium", name, value, shape, float64=True)
         if name == "mat" and not isinstance(value, jax.core.Tracer):
             self.disc.material.check(np.asarray(value, dtype=np.float64))
         return value.astype(jnp.float64)

@@ -1,4 +1,5 @@
-"""A table across the jobs of a `--multirun` sweep, written when the sweep ends (any launcher).
+"""A `--multirun` sweep: the jobs it launches and their checks before it starts (job_overrides,
+checking), and a table across its jobs, written when the sweep ends (any launcher).
 
 Hydra calls `SweepSummary.on_multirun_end` in the launching process once every job has returned
 (conf/config.yaml registers it under hydra.callbacks).  It reads each job directory's
@@ -8,8 +9,11 @@ or that it left no metrics (still running).
 """
 from __future__ import annotations
 
+import itertools
 import json
 import logging
+import sys
+import time
 from pathlib import Path
 
 import yaml
@@ -18,6 +22,45 @@ from hydra.experimental.callback import Callback
 log = logging.getLogger(__name__)
 FAILED_JOB = "failed.json"  # in a sweep job's directory: the job failed (its exit code and why)
 last = {"failed": [], "jobs": 0, "summary": None}  # the last sweep this process summarised: its failed jobs
+
+
+def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
+    """The override list of every job Hydra's basic sweeper would launch (one without
+    --multirun)."""
+    if not multirun:
+        return [overrides]
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    choices = []
+    for o in OverridesParser.create().parse_overrides(overrides):
+        if o.is_sweep_override():
+            key = o.get_key_element()
+            choices.append([f"{key}={v}" for v in o.sweep_string_iterator()])
+        else:
+            choices.append([o.input_line])
+    return [list(job) for job in itertools.product(*choices)]
+
+
+def checking(jobs: list, multirun: bool, rank: int = 0, first: float = 2.0, every: float = 10.0,
+             clock=time.monotonic, out=None):
+    """(number, overrides) of each job that nma.cli.preflight checks before a sweep starts.  Where
+    the checks take longer than `first` seconds, rank 0 says on stderr what they are and, every
+    `every` seconds, how many jobs are done, and at the end how long they took (each job's config
+    is composed and checked as Hydra will run it: a sweep of hundreds of jobs takes minutes)."""
+    out = out or sys.stderr
+    start = last = clock()
+    said = False
+    for num, job in enumerate(jobs):
+        now = clock()
+        if multirun and rank == 0 and now - last >= (every if said else first):
+            what = ("checking the sweep's jobs before any starts, each config composed and checked "
+                    "as it will run: " if not said else "checking the sweep's jobs: ")
+            print(f"{what}{num} of {len(jobs)} done, {now - start:.0f} s", file=out, flush=True)
+            said, last = True, now
+        yield num, job
+    if said:
+        print(f"checked the sweep's {len(jobs)} jobs in {clock() - start:.0f} s", file=out,
+              flush=True)
 
 
 def summarise(sweep_dir: Path) -> dict:

@@ -233,3 +233,23 @@ def test_a_stop_signal_ends_a_step_that_never_finishes_within_its_grace():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM and time.monotonic() - t0 < 30, proc.stderr
     assert "SIGTERM: the current step did not finish within trainer.stop_grace = 1 s" in proc.stderr
+
+
+def test_a_second_ctrl_c_ends_the_run_at_once_in_one_line():
+    """A first Ctrl-C asks for a stop after the current step; a second ends the run at once (exit
+    130), in a line and without a traceback, even while the step runs on (here: the main thread
+    sleeps)."""
+    code = ("import os, signal, time\n"
+            "from nma.signals import stop_on_signals\n"
+            "with stop_on_signals(grace=60.0):\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    time.sleep(0.5)\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    time.sleep(60)\n")
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 128 + signal.SIGINT and time.monotonic() - t0 < 30, proc.stderr
+    assert proc.stderr.splitlines() == [
+        "SIGINT: stopping after the current step, with a checkpoint (Ctrl-C again to interrupt at "
+        "once)",
+        "SIGINT: stopping now; the run resumes from its last checkpoint"]

@@ -89,14 +89,16 @@ BAD_RUN = [
     ("task=digital_mnist task.phase=finetune", "optim.lr must be in (0, 0.01] for task.phase=finetune, which trains "
                                                "a network, got 0.3 (task=digital_mnist's rate is the lookup table's)"),
     ("task=translation_spec", "task=translation_spec names no scene of its own name (scene=translation_spec is "
-                              "unknown): give its scene, scene=<one of ['digital_mnist',"),
+                              "unknown): give its scene, scene=translation"),
+    ("task=energy_focus", "task=energy_focus names no scene of its own name (scene=energy_focus is "
+                          "unknown): give its scene, scene=translation"),
 ]
 BAD_SIMULATE = [
     ("actuation=1.0", "actuation must be a list such as [1.0, 2.0], got a single float"),
     ("actuation=[1.0]", "actuation must have 2 entries for scene translation, got 1: [1.0]"),
     ("actuation=[1.0,nan]", "actuation must be finite numbers"),
     ("material.nu=0.5", "material.nu must be a finite number in (-1, 0.5), got 0.5"),
-    ("material.E=1e300", "material.E must be a finite number in (0, 1e30], got 1e+300"),
+    ("material.E=1e300", "material.E must be a finite number in [1e-30, 1e30], got 1e+300"),
     ("scene.groups.0.direction=[0,0]", "scene.groups.direction of group left must not be [0, 0]"),
     ("scene.pinned=[[0,0]] scene.groups=[]", "nothing stops it rotating about (0, 0)"),
     ("solver.linear=cholesky", "solver.linear must be one of ['auto', 'dense', 'pardiso', 'superlu'], got 'cholesky'"),
@@ -649,3 +651,43 @@ def test_auto_models_a_nearly_incompressible_material_locking_free_and_a_compres
                                "contact=off"))
     assert (own.material.formulation, own.solver.max_iters, own.contact.enabled) == ("displacement", 50, False)
     assert (own.solver.corrector, own.solver.max_step_iters, own.fidelity.inversion_barrier) == ("trust_region", 300, 0.5)
+
+
+def test_a_long_sweeps_checks_say_what_they_check_and_how_far_they_got():
+    """nma.sweep.checking: silent where the checks end within 2 s, else a first line saying what
+    is checked, one every 10 s with the jobs done, and the time they took; nothing from a single
+    run or from the ranks after the first."""
+    import io
+
+    from nma.sweep import checking
+
+    def lines(multirun=True, rank=0, step=0.5, jobs=60):
+        ticks, out = iter(step * k for k in range(10 * jobs)), io.StringIO()
+        done = checking([["j"]] * jobs, multirun, rank, clock=lambda: next(ticks), out=out)
+        assert [n for n, _ in done] == list(range(jobs))
+        return out.getvalue().splitlines()
+
+    said = lines()
+    assert said[0] == ("checking the sweep's jobs before any starts, each config composed and "
+                       "checked as it will run: 3 of 60 done, 2 s")  # job k: at 0.5 (k + 1) s
+    assert said[1:-1] == ["checking the sweep's jobs: 23 of 60 done, 12 s",
+                          "checking the sweep's jobs: 43 of 60 done, 22 s"]
+    assert said[-1] == "checked the sweep's 60 jobs in 30 s"
+    assert lines(step=0.01) == [] and lines(multirun=False) == [] and lines(rank=1) == []
+
+
+def test_a_relative_dataset_not_found_is_said_so_not_called_a_changed_config(tmp_path, monkeypatch):
+    """A dataset named relative to the directory a run started in, resumed from another: its file
+    is not found there, which the check says (naming the directory it looked in) before it compares
+    the checkpoint's record of the dataset's contents."""
+    (tmp_path / "rows.csv").write_text("0.1,0.2\n-0.1,0.0\n")
+    overrides = ("task=translation_spec", "scene=translation", "task.low=null", "task.high=null",
+                 "task.dataset=rows.csv", "trainer.resume=true")
+    monkeypatch.chdir(tmp_path)
+    run.validate_in(compose_cfg(*overrides), tmp_path / "run")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    with pytest.raises(ConfigError, match=r"^task\.dataset rows\.csv cannot be read: it is not a "
+                                          f"file, read from the current directory {elsewhere}$"):
+        run.validate_in(compose_cfg(*overrides), tmp_path / "run")

@@ -14,7 +14,7 @@ from nma.dynamics.waveform import Fourier
 from nma.mechanics import contact
 from nma.mechanics.energy import Tangents, quadrature, strain_energy
 from nma.simulator import Simulator
-from nma.solver.status import Status
+from nma.solver.status import Status, failure
 
 CELLS = 20  # a clamped strip of 20 solid cells of 5 x 5: L = 100, h = 5 (slenderness 20)
 L, H = 5.0 * CELLS, 5.0
@@ -272,3 +272,81 @@ def test_static_suffices_for_slow_actuation():
     omega = 2 * np.pi / 10.0
     assert "0.25%" in static_suffices(omega, 200.0)
     assert static_suffices(omega, 30.0) is None
+
+
+def _pressed(T1):
+    """The block's top pressed down as (t / T1)^2 times the coefficient: at 3, the material inverts
+    between Gauss points (INVERTS) in the fifth time step of T1 / 4."""
+    return lambda c, t: c[:1] * (t / T1) ** 2
+
+
+def test_a_trajectory_says_by_index_which_states_it_solved(block, beam):
+    """A completed trajectory reports all steps + 1 states, its end at the last grid time exactly
+    (0.1 x 6, which six sums of 0.1 fall short of); one whose step fails says which interval: its
+    states up to that interval's start are solved, the later ones hold the last."""
+    sim, X = beam[0], beam[1]
+    dyn = Dynamics(sim, dt=0.1, steps=6, waveform=no_actuation, workers=1)
+    u, _, info, _ = dyn.run(X, jnp.zeros(1), sim.material_params)
+    assert int(info.status) == Status.CONVERGED and int(info.intervals) == 6 and len(u) == 7
+    assert float(info.time) == dyn.times[-1] == 0.1 * 6 > sum([0.1] * 6)
+    sim, geom, mat, T1 = block
+    dyn = Dynamics(sim, "newmark", dt=T1 / 4, steps=6, waveform=_pressed(T1), max_cuts=0, workers=1)
+    u, v, info, kept = dyn.run(sim.reference_points(geom), jnp.array([3.0]), mat)
+    assert int(info.status) == Status.INVERTS and int(info.intervals) == 4 == len(kept)
+    assert float(info.time) == dyn.times[4]  # the failed step starts at the last state solved
+    assert [(s.k, s.j) for s in kept] == [(k, 0) for k in range(4)]
+    np.testing.assert_array_equal(u[5:], np.broadcast_to(u[4], u[5:].shape))
+    assert np.abs(u[4] - u[3]).max() > 0
+    assert "(time step 5) did not converge" in str(failure(info))
+
+
+def test_the_adjoint_of_a_failed_trajectory_holds_its_last_state(block):
+    """Past a failed step every state is the last one solved, so its cotangents are that state's:
+    the gradient of a loss over all the states of a trajectory that fails in its fifth step, against
+    central differences in the radii and the waveform (the failure where it was for both)."""
+    sim, geom, mat, T1 = block
+    dyn = Dynamics(sim, "newmark", dt=T1 / 4, steps=6, waveform=_pressed(T1), max_cuts=0, workers=1)
+
+    def run(radii, coeffs):
+        X = sim.reference_points({**geom, "radii": radii})
+        u, v, info = dyn.function(X, coeffs, mat)
+        wall = jax.vmap(lambda ui: sim.tracked(X, ui)["wall"])(u)
+        return jnp.sum(wall ** 2) + 1e3 * jnp.sum(v ** 2), info
+
+    x0 = (geom["radii"], jnp.array([3.0]))
+    (_, info), grads = jax.value_and_grad(run, argnums=(0, 1), has_aux=True)(*x0)
+    assert int(info.status) == Status.INVERTS and int(info.intervals) == 4
+    rng = np.random.default_rng(0)
+    direction = (jnp.asarray(rng.normal(size=x0[0].shape)), jnp.asarray(rng.normal(size=1)))
+    h = 1e-7
+    (plus, i_plus), (minus, i_minus) = (run(*[x + s * d for x, d in zip(x0, direction)])
+                                        for s in (h, -h))
+    assert int(i_plus.intervals) == int(i_minus.intervals) == 4
+    along = sum(float(jnp.sum(g * d)) for g, d in zip(grads, direction))
+    np.testing.assert_allclose(along, (plus - minus) / (2 * h), rtol=1e-6)
+
+
+def test_the_dense_backend_steps_through_time_as_the_host_ones(block):
+    """solver.linear=dense serves dynamics: its time steps' Newton is driven from the host with
+    dense LU factors, to the same trajectory and gradient as SuperLU's, to round-off; its natural
+    frequencies come from the scene's sparse pattern as the host backends' do."""
+    sim, geom, mat, T1 = block
+    dense = Simulator(sim.disc, "dense", sim.options)
+    X = sim.reference_points(geom)
+    np.testing.assert_allclose(natural_frequencies(dense, X, mat, count=2),
+                               natural_frequencies(sim, X, mat, count=2), rtol=1e-9)
+    out = []
+    for s in (sim, dense):
+        dyn = Dynamics(s, "newmark", dt=T1 / 4, steps=3, waveform=_pressed(T1), workers=1)
+
+        def loss(coeffs, dyn=dyn):
+            u, v, info = dyn.function(X, coeffs, mat)
+            return jnp.sum(u[-1] ** 2) + jnp.sum(v ** 2), (u, info)
+
+        (_, (u, info)), g = jax.value_and_grad(loss, has_aux=True)(jnp.array([2.0]))
+        assert int(info.status) == Status.CONVERGED and int(info.intervals) == 3
+        out.append((np.asarray(u), np.asarray(g)))
+    np.testing.assert_allclose(out[1][0], out[0][0], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(out[1][1], out[0][1], rtol=1e-7)
+    assert dense.backend.stats["factorisations"] > 0
+

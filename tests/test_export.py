@@ -3,6 +3,7 @@ import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -206,3 +207,54 @@ def test_export_never_replaces_a_file_and_reads_a_damaged_metrics_file_as_absent
     for damaged in ([1, 2], {**logged, "invalid_states": "many", "checked_states": None}):
         (d / "metrics.json").write_text(json.dumps(damaged))
         assert evaluation_states(d)["source"].startswith("solved again")
+
+
+def _logged(run, failed: int, checked: int, invalid: int = 0):
+    """The run's final evaluation as metrics.json records it (at the checkpoint's step, 7)."""
+    (run / "metrics.json").write_text(json.dumps({
+        "step": 7, "invalid_states": invalid, "checked_states": checked, "failed_solves": failed,
+        "min_J": 0.5 if checked else None, "min_gap": 0.3 if checked else None,
+        "invalid_samples": {}}))
+
+
+def test_states_nobody_checked_never_vouch_for_the_design(trained_run, tmp_path):
+    """The fabrication report's `valid` holds only where every state of the evaluation set was
+    reached and checked: none checked (every solve failed) is not valid, nor are some failed;
+    `unchecked` says why.  Every state checked and physical is valid."""
+    import shutil
+
+    from nma.export import evaluation_states
+
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    for failed, checked, valid, why in ((4, 0, False, "4 of the evaluation set's solves failed"),
+                                        (1, 27, False, "1 of the evaluation set's solves failed"),
+                                        (0, 0, False, "no state was checked"), (0, 36, True, None)):
+        _logged(run, failed, checked)
+        found = evaluation_states(run)
+        assert found["valid"] is valid and found["checked_states"] == checked
+        assert "unchecked" not in found if why is None else why in found["unchecked"]
+        assert found["source"].startswith("the run's final evaluation")
+
+
+def test_export_of_a_run_whose_every_solve_failed_writes_the_file_and_exits_1(trained_run,
+                                                                               tmp_path):
+    """The file is written and the report says valid false with 0 states checked; the command exits
+    1 with one line: the state check it was asked for (states=true) says nothing of the design."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    _logged(run, 9, 0)
+    proc = subprocess.run([sys.executable, "-m", "nma.export", f"run={run}", "format=stl",
+                           "thickness=2", "samples=8"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    line = proc.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: ")
+    assert "no state of its task's evaluation set was checked" in line
+    assert "9 failed solves" in line and "states=false" in line
+    said = json.loads(proc.stdout.strip().splitlines()[-1])
+    report = json.loads(Path(said["report"]).read_text())
+    assert report == said and report["evaluation_states"]["checked_states"] == 0
+    assert report["evaluation_states"]["valid"] is False
+    assert Path(report["file"]).stat().st_size > 1000

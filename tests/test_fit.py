@@ -1,8 +1,10 @@
 """Fitting a law to test data (nma.fit): synthetic data made from known parameters is fitted back to them,
 the Soft Robotics Materials Database's file format reads as it is, the command writes a material file."""
 import json
+import re
 import subprocess
 import sys
+import warnings
 
 import jax.numpy as jnp
 import numpy as np
@@ -101,3 +103,72 @@ def test_a_law_that_cannot_follow_the_data_stably_is_refused(tmp_path):
     (tmp_path / "s.csv").write_text("strain,stress\n" + "\n".join(f"{x - 1},{np.log(x)}" for x in lam) + "\n")
     with pytest.raises(ConfigError, match="law=mooney_rivlin: no fit from 3 starts is stable"):
         fit(FitConfig(data=str(tmp_path / "s.csv"), law="mooney_rivlin", starts=3))
+
+
+
+def test_a_database_file_reads_past_metadata_commas_and_a_zero_offset(tmp_path):
+    """The database's layout with a comma in a metadata row (its `Lab` row), a first row whose
+    stress is the test's offset about zero (of the other sign, within 5% of the largest stress: left
+    out), and the same with decimal commas."""
+    rows = ["PARAMETER;INFO;;;", "Lab;Univ. Savoie Mont Blanc - SYMME Lab, 7400 Annecy, France;;;",
+            ";;;;", "Time (s);True Strain;True Stress (MPa);Engineering Strain;"
+            "Engineering Stress (MPa)",
+            "0.1;0;0;0.04;-0.0007"]
+    rows += [f"{t};0;0;{e};{2 * e}" for t, e in enumerate([0.1, 0.2, 0.4, 0.8])]
+    text = "\n".join(rows) + "\n"
+    for name, content in (("dot.csv", text), ("comma.csv", text.replace(".", ","))):
+        (tmp_path / name).write_text(content)
+        modes, stretches, stresses = read(tmp_path / name, "Engineering Strain",
+                                          "Engineering Stress (MPa)", "uniaxial", None)
+        np.testing.assert_allclose(stretches, [1.1, 1.2, 1.4, 1.8])
+        np.testing.assert_allclose(stresses, [0.2, 0.4, 0.8, 1.6])
+
+
+@pytest.mark.parametrize("rows, says", [
+    ([(0.1, 0.2), (0.2, 0.2), (0.3, 0.2), (0.4, 0.2)], "the stress is 0.2 at every strain"),
+    ([(0.1, 0.0), (0.2, 0.0), (0.3, 0.0)], "the stress is 0 at every strain"),
+    ([(0.5, 0.1), (0.5, 0.2), (0.5, 0.3), (0.5, 0.4)],
+     "4 rows at 1 distinct strain; a fit needs the stress at at least 3"),
+    ([(0.1, 0.1), (0.2, float("nan")), (0.3, 0.3), (0.4, 0.4)],
+     "row 3 has stress 'nan': every number must be finite"),
+    ([(0.1, 0.1), (-1.2, -0.5), (0.3, 0.3), (0.4, 0.4)],
+     "row 3 has strain -1.2: an engineering strain must exceed -1"),
+    ([(0.1, 0.4), (0.2, 0.3), (0.3, 0.2), (0.4, 0.1)],
+     "in the uniaxial test the stress does not grow with the strain"),
+    ([(0.1, 0.1), (0.2, 0.2)], "2 rows with numbers in both columns; a fit needs at least 3"),
+])
+def test_degenerate_data_are_refused_naming_the_problem(tmp_path, rows, says):
+    """One line saying what is wrong with the data, before any fit, and no numpy warning."""
+    lines = "\n".join(f"{e},{s}" for e, s in rows)
+    (tmp_path / "d.csv").write_text(f"strain,stress\n{lines}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ConfigError) as err:
+            fit(FitConfig(data=str(tmp_path / "d.csv"), law="mooney_rivlin", starts=1))
+    assert says in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_law_needs_as_many_points_as_parameters(tmp_path):
+    data = synthetic(tmp_path / "d.csv", law_of("mooney_rivlin"), [0.3, 0.05], modes=("uniaxial",))
+    data.write_text("\n".join(data.read_text().splitlines()[:5]) + "\n")
+    says = "4 distinct points; law=ogden terms=3 has 6 parameters"
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        fit(FitConfig(data=str(data), law="ogden", terms=3, starts=1))
+
+
+@pytest.mark.parametrize("p, at_bound", [([0.2, 10.0], False), ([0.2, 1e9], True)])
+def test_gents_jm_is_bounded_where_it_is_neo_hookeans(tmp_path, p, at_bound):
+    """Stiffening data give Gent's Jm back; Neo-Hookean data (Jm 1e9) stop Jm at its bound, 1000
+    times the data's largest I1 - 3, where Gent is Neo-Hookean's within 0.1% over the data: the
+    record says so and names the Neo-Hookean material, and the stresses still follow the data."""
+    data = synthetic(tmp_path / "d.csv", law_of("gent"), p, modes=("uniaxial",))
+    out = fit(FitConfig(data=str(data), law="gent", starts=2))["material"]
+    jm, bound = out["parameters"]["Jm"], 1e3 * (2.0 ** 2 + 2.0 / 2.0 - 3.0)
+    if at_bound:
+        note = out["fit"]["note"]
+        assert jm == pytest.approx(bound, rel=1e-2) and "Jm is at its bound 2000" in note
+        assert "material.law=neo_hookean with E = 2 mu (1 + nu)" in note
+        assert out["fit"]["max_relative_error"] < 2e-3
+    else:
+        np.testing.assert_allclose([out["parameters"]["mu"], jm], p, rtol=1e-6)
+        assert "note" not in out["fit"]

@@ -10,8 +10,9 @@ import pytest
 
 from nma import config
 from nma.errors import ConfigError
-from nma.mechanics.laws import law_of, nominal_stress, principal_power_sum
-from nma.mechanics.material import Material, lame
+from nma.mechanics.laws import drucker_unstable, law_of, nominal_stress, principal_power_sum
+from nma.mechanics.material import Material, from_lame, lame
+from nma.mechanics.material import material as mat_of
 from nma.schema import MaterialConfig
 from nma.simulator import Simulator
 
@@ -260,3 +261,46 @@ def test_a_solve_in_a_law_that_reduces_to_neo_hookean_is_neo_hookeans():
     u_mr = mr.solve(mr.init_params(), d, mr.material_params).u
     assert float(jnp.max(jnp.abs(u_nh))) > 0.5  # a large deformation
     np.testing.assert_allclose(u_mr, u_nh, rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(u_nh))))
+
+
+
+@pytest.mark.parametrize("law, p, says", [
+    ("gent", [0.1], "p must hold 2 parameters, got 1: law gent takes [mu, Jm]"),
+    ("gent", [0.1, 5.0, 3.0], "p must hold 2 parameters, got 3: law gent takes [mu, Jm]"),
+    ("yeoh", [0.1], "p must hold 3 parameters, got 1: law yeoh takes [C10, C20, C30]"),
+    ("mooney_rivlin", [[0.1, 0.0]], "p must have shape (n,), got (1, 2); law mooney_rivlin takes"),
+    ("gent", [np.nan, 5.0], "p must be finite, got [nan, 5.0]; law gent takes [mu, Jm]"),
+    ("gent", [0.1, -5.0], "p = [mu, Jm] must have Jm in (0, 1e12] (law gent), got -5"),
+    ("ogden", [0.1, 0.0], "law ogden1's exponents alpha must lie in [-100, -0.01] or [0.01, 100]"),
+])
+def test_a_laws_stress_refuses_parameters_not_the_laws(law, p, says):
+    """Too few, too many, not finite or out of range: refused naming the law and what it takes,
+    not a plausible number from the parameters that are there."""
+    names = ("mu1", "alpha1") if law == "ogden" else ()
+    with pytest.raises(ConfigError) as err:
+        nominal_stress(law_of(law, names), jnp.asarray(p), "uniaxial", 1.5)
+    assert f"nominal_stress: {says}" in str(err.value)
+
+
+def test_the_laws_functions_check_their_other_arguments_naming_them():
+    gent, p, nh = law_of("gent"), jnp.array([0.1, 5.0]), law_of("neo_hookean")
+    cases = [(lambda: nominal_stress(gent, p, "shear", 1.5), ConfigError,
+              "nominal_stress: mode must be one of"),
+             (lambda: nominal_stress(gent, p, "uniaxial", -1.5), ConfigError,
+              "nominal_stress: lam must hold positive"),
+             (lambda: nominal_stress("gent", p, "uniaxial", 1.5), TypeError,
+              "nominal_stress: law must be a Law"),
+             (lambda: nominal_stress(nh, jnp.array([1.0]), "uniaxial", 1.5), ConfigError,
+              "law neo_hookean is parametrised by E and nu"),
+             (lambda: drucker_unstable(law_of("yeoh"), jnp.array([0.1])), ConfigError,
+              "drucker_unstable: p must hold 3 parameters, got 1: law yeoh takes [C10, C20, C30]"),
+             (lambda: drucker_unstable(gent, p, (2.0, 0.5)), ConfigError,
+              "drucker_unstable: stretches must be (low, high) with 0 < low < high"),
+             (lambda: Material(law=gent).check(jnp.array([0.1, 5.0])), ValueError,
+              "equilibrium: mat must be law gent's [mu, Jm, nu]: 3 numbers, got 2"),
+             (lambda: from_lame(-1.0, 2.0), ValueError, "from_lame: mu must be a finite number"),
+             (lambda: mat_of("stiff", 0.3), TypeError, "material: E must be a real number")]
+    for call, kind, says in cases:
+        with pytest.raises(kind) as err:
+            call()
+        assert says in str(err.value)

@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 import sys
 
@@ -69,3 +70,128 @@ def test_json_line_has_null_for_non_finite_values():
     from nma.simulate import json_safe
     line = json.dumps(json_safe({"residual": float("nan"), "x": [1.0, float("inf")], "n": 3}), allow_nan=False)
     assert json.loads(line) == {"residual": None, "x": [1.0, None], "n": 3}
+
+
+def _settings(*overrides):
+    """nma.simulate's checked settings, as the command builds them from its command line."""
+    from hydra import compose, initialize_config_dir
+
+    from nma import config
+    from nma.schema import register
+    from nma.simulate import validate
+
+    register()
+    with initialize_config_dir(config_dir=str(config.CONF_DIR), version_base="1.3"):
+        return validate(compose(config_name="simulate", overrides=list(overrides)))
+
+
+def test_a_completed_run_in_time_reports_and_checks_every_state(tmp_path):
+    """Six steps of 1.1 (six sums of 1.1 fall short of 1.1 x 6, by which a state found by its time
+    would be lost): all seven states are in trajectory.h5, checked, and in the peak kinetic
+    energy."""
+    from nma.simulate import run
+
+    result = run(_settings("scene=strip", "actuation=[0.01,0.01]", "fidelity=fast",
+                           "dynamics=newmark", "dynamics.dt=1.1", "dynamics.steps=6",
+                           "dynamics.ramp=6", "output.figure=false"), tmp_path)
+    dyn = result["dynamics"]
+    assert result["converged"] and result["valid"] and dyn["completed"]
+    assert dyn["every_state_physical"] and dyn["final_vs_static"] is not None
+    assert dyn["states_reached"] == 7 and dyn["valid_states"]["checked_states"] == 7
+    assert dyn["time_reached"] == 1.1 * 6 > sum([1.1] * 6)
+    with h5py.File(tmp_path / "trajectory.h5") as f:
+        assert f["u"].shape[0] == 7 and f["times"][-1] == 1.1 * 6
+        kinetic = f["kinetic_energy"][()]
+        assert len(kinetic) == 7 and dyn["kinetic_energy_max"] == kinetic.max() > 0
+
+
+def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
+    """The actuation applied at once (ramp 0), no cuts: a time step fails.  One line on stderr says
+    which step, from and to which time, and why; the JSON's top level says not converged and not
+    valid, its dynamics the states reached, each checked, and no final state to compare with the
+    static one."""
+    proc = simulate(tmp_path, "scene=translation", "actuation=[4.0,-4.0]", "dynamics=newmark",
+                    "dynamics.steps=4", "dynamics.ramp=0", "dynamics.max_cuts=0",
+                    "output.figure=false")
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    line = proc.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: scene translation") and "time stepping failed: time step" in line
+    assert " of 4, from t = " in line and "did not converge (dynamics.max_cuts=0: not cut)" in line
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    dyn = result["dynamics"]
+    assert result["converged"] is False and result["valid"] is False and result["error"] in line
+    assert not dyn["completed"] and not dyn["every_state_physical"]
+    assert dyn["final_vs_static"] is None
+    assert 1 <= dyn["states_reached"] <= 4
+    assert dyn["valid_states"]["checked_states"] == dyn["states_reached"]
+    with h5py.File(tmp_path / "trajectory.h5") as f:
+        assert f["u"].shape[0] == dyn["states_reached"]
+
+
+def test_simulate_serves_the_dense_backend_static_and_in_time(tmp_path):
+    """solver=dense: the static solve with its natural frequencies (from the scene's sparse
+    pattern), and the run in time (its steps' Newton driven from the host with dense LU factors), as
+    SuperLU's."""
+    from nma.simulate import run
+
+    common = ("scene=strip", "actuation=[1.0,1.0]", "fidelity=fast", "dynamics=newmark",
+              "dynamics.dt=50", "dynamics.steps=2", "output.figure=false")
+    dense, host = (run(_settings(*common, f"solver={name}"), tmp_path / name)
+                   for name in ("dense", "superlu"))
+    assert dense["converged"] and dense["dynamics"]["completed"]
+    assert dense["dynamics"]["states_reached"] == 3
+    np.testing.assert_allclose(dense["natural_frequencies"], host["natural_frequencies"], rtol=1e-8)
+    for k, p in host["tracked"].items():
+        np.testing.assert_allclose(dense["tracked"][k], p, atol=1e-10)
+    with h5py.File(tmp_path / "dense" / "trajectory.h5") as a:
+        with h5py.File(tmp_path / "superlu" / "trajectory.h5") as b:
+            np.testing.assert_allclose(a["u"][()], b["u"][()], atol=1e-10)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["material.E=1e-300"], "material.E must be a finite number in [1e-30, 1e30], got 1e-300"),
+    (["material.E=1e31"], "material.E must be a finite number in [1e-30, 1e30]"),
+    (["material.density=1e-300"],
+     "material.density must be a finite number in [1e-30, 1e30], got 1e-300"),
+    (["material.E=1e30", "material.density=1e-30"],
+     "material.density must be in [3.85e-11, 1e+30] for this material: its shear modulus 3.85e+29 "
+     "over the density"),
+    (["material=yeoh", "material.parameters={C10: 1e-20, C20: 0, C30: 0}", "material.density=1e25"],
+     "material.density must be in [1e-30, 2e+20] for this material: its shear modulus 2e-20"),
+])
+def test_a_material_no_float64_solve_can_honour_is_refused_before_work(overrides, message):
+    from nma.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _settings("scene=translation", *overrides)
+
+
+def test_natural_frequencies_that_cannot_be_computed_are_null_with_the_reason(
+        simulator, monkeypatch, caplog, tmp_path):
+    """A modal solve that fails (ARPACK; a singular tangent) leaves the static result standing: the
+    frequencies null and why, said on the log, not a traceback.  A run in time, which needs the
+    lowest one for its time step, fails with the reason (the JSON line then says so)."""
+    from scipy.sparse.linalg import ArpackError
+
+    from nma.dynamics import report
+    from nma.errors import SolverError
+
+    def fails(*args, **kwargs):
+        raise ArpackError(-9)
+
+    monkeypatch.setattr(report, "natural_frequencies", fails)
+    sim = simulator("translation", "superlu", ctrl_per_patch=5, quad_points=2)
+    X = sim.reference_points(sim.init_params())
+    out = report.frequencies(sim, X, sim.material_params, 1.0, np.zeros(2), np.zeros(X.shape))
+    assert out["natural_frequencies"] is None and out["natural_periods"] is None
+    assert "ArpackError" in out["natural_frequencies_error"]
+    assert "could not be computed" in caplog.text
+    with pytest.raises(SolverError, match="lowest natural frequency at rest could not be computed"):
+        report.lowest_frequency(sim, X, sim.material_params, 1.0)
+    from nma.simulate import run
+
+    result = run(_settings("scene=strip", "actuation=[0.1,0.1]", "fidelity=fast",
+                           "dynamics=newmark", "dynamics.steps=2", "output.figure=false"), tmp_path)
+    assert result["natural_frequencies"] is None and "energy" in result
+    assert result["converged"] is False and result["valid"] is False
+    assert "lowest natural frequency at rest could not be computed" in result["error"]

@@ -299,7 +299,8 @@ def test_the_eager_door_checks_the_design_and_material_naming_them(simulator):
         sim.reference_points({"radii": p["radii"] * 0.0})
     with pytest.raises(ValueError, match=re.escape("mat = [E, nu] must have nu in (-1, 0.5), got 0.6")):
         sim.solve(p, d, jnp.array([0.07, 0.6]))
-    with pytest.raises(ValueError, match=re.escape("mat = [E, nu] must have E in (0, 1e30], got -1")):
+    with pytest.raises(ValueError, match=re.escape("mat = [E, nu] must have E in [1e-30, 1e30], "
+                                                   "got -1")):
         sim.equilibrium(X, d, jnp.array([-1.0, 0.3]))
     with pytest.raises(TypeError, match="mat must be an array of shape \\(2,\\) of real numbers, got str"):
         sim.solve(p, d, "rubber")
@@ -601,3 +602,49 @@ def test_the_trust_region_stops_where_the_element_bound_holds_the_load(simulator
     sim = simulator("translation", solver={"corrector": "trust_region"}, ctrl_per_patch=5, quad_points=2)
     eq = sim.solve({"radii": jnp.asarray(radii)}, jnp.asarray(d), material(0.07, 0.3), throw=False)
     assert int(eq.info.status) == Status.INVERTS and int(eq.info.iterations) < 50, eq.message
+
+
+def test_the_residual_norm_neither_underflows_nor_changes_a_normal_one():
+    """newton.norm: the same bits as jnp.linalg.norm for vectors of every ordinary size (a power of
+    two scales exactly), and right where the plain norm's squares underflow (a material of E ~
+    1e-160: its norm was 0, and such a solve converged at once) or overflow; 0, inf and nan stay."""
+    from nma.solver.newton import norm
+
+    rng = np.random.default_rng(1)
+    for scale in (1e-30, 1e-12, 1e-3, 1.0, 7.0, 1e8, 1e30):
+        v = jnp.asarray(scale * rng.normal(size=2000))
+        assert float(norm(v)) == float(jnp.linalg.norm(v))
+    v = rng.normal(size=50)
+    for scale in (1e-170, 1e-300, 1e200):
+        got = float(norm(jnp.asarray(scale * v)))
+        assert got > 0 and np.isfinite(got)
+        np.testing.assert_allclose(got / scale, np.linalg.norm(v), rtol=1e-14)
+    assert float(jnp.linalg.norm(jnp.asarray(1e-170 * v))) == 0.0  # what the plain norm says
+    assert float(norm(jnp.zeros(3))) == 0.0
+    assert np.isnan(float(norm(jnp.array([1.0, np.nan]))))
+    assert float(norm(jnp.array([1.0, np.inf]))) == np.inf
+
+
+def test_a_soft_material_converges_as_a_stiff_one_against_a_floored_tolerance(simulator):
+    """Neo-Hookean under prescribed displacements: the equilibrium does not depend on E, so the
+    softest material in range (E = 1e-30) reaches the same state in the same iterations as E = 1,
+    its residual and tolerance scaled by E, neither 0; the tolerance's floor is far below both.  A
+    modulus outside float64's reach (1e-300: its residual's round-off underflows) is refused, naming
+    the range."""
+    from nma.solver.newton import tolerance_floor
+
+    sim = simulator("translation", "superlu", ctrl_per_patch=5, quad_points=2)
+    X, d = sim.reference_points(sim.init_params()), jnp.array([2.0, -1.0])
+    (u1, i1), (u2, i2) = (sim.equilibrium(X, d, material(E, 0.3)) for E in (1.0, 1e-30))
+    assert int(i1.status) == int(i2.status) == Status.CONVERGED
+    assert int(i1.iterations) == int(i2.iterations)
+    np.testing.assert_allclose(np.asarray(u2), np.asarray(u1), rtol=0, atol=1e-12)
+    assert 0 < float(i2.residual) <= float(i2.tolerance)
+    np.testing.assert_allclose(float(i2.tolerance), 1e-30 * float(i1.tolerance), rtol=1e-9)
+    assert 0 < tolerance_floor(jnp.float64) < 1e-280
+    for E in (1e-300, 1e-31, 1e31):
+        with pytest.raises(ConfigError, match=re.escape("material.E must be a finite number in "
+                                                        "[1e-30, 1e30]")):
+            material(E, 0.3)
+        with pytest.raises(ValueError, match=re.escape("must have E in [1e-30, 1e30]")):
+            sim.equilibrium(X, d, jnp.array([E, 0.3]))

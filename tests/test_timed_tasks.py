@@ -5,8 +5,9 @@ import json
 import h5py
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 
-from conftest import train_in_process
+from conftest import compose_cfg, train_in_process
 
 SHORT = ["scene=translation", "debug=default", "dynamics.steps=8", "task.period_steps=20", "task.ramp_steps=2",
          "task.d_max=1", "trainer.fields=final"]
@@ -15,8 +16,9 @@ SHORT = ["scene=translation", "debug=default", "dynamics.steps=8", "task.period_
 def test_follow_path_runs_and_checks_every_state(tmp_path):
     """Two training steps of the pointer following circles (8 time steps, the window the last 5, actuations
     up to 1), two evaluation samples: every one of their 2 x 9 states checked, the figures in time drawn."""
-    record = train_in_process(tmp_path, "task=follow_path", *SHORT, "task.window=[4,8]", "task.eval_radii=1",
-                              "task.eval_phases=2")
+    overrides = ("task=follow_path", *SHORT, "task.window=[4,8]", "task.eval_radii=1",
+                 "task.eval_phases=2")
+    record = train_in_process(tmp_path, *overrides)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["metric"] == "mean_path_error" and np.isfinite(metrics["value"]) and metrics["failed_solves"] == 0
     assert record["checked_states"] == 2 * 9 and record["invalid_states"] == 0
@@ -26,6 +28,15 @@ def test_follow_path_runs_and_checks_every_state(tmp_path):
         assert f["u"].shape[:2] == (2, 9) and f["times"].shape == (9,) and np.all(f["converged"][()])
         assert np.abs(f["u"][()][:, -1]).max() > 0  # the waveforms moved the part
     assert np.asarray(metrics["eval_actuations"]).shape == (2, 2 * (2 * 2 + 1))  # two actuators' Fourier coefficients
+    # experiments/repro.py's figure of the paths, from the run's saved fields and config: its errors
+    from experiments.repro import follow_paths
+
+    (tmp_path / ".hydra").mkdir()
+    OmegaConf.save(compose_cfg(*overrides), tmp_path / ".hydra" / "config.yaml")
+    paths = follow_paths(tmp_path)
+    assert [p["sample"] for p in paths] == [0, 1]
+    assert paths[0]["reached"].shape == paths[0]["target"].shape == (5, 2)
+    assert [p["error"] for p in paths] == pytest.approx(metrics["per_sample"], rel=1e-9)
 
 
 @pytest.mark.slow
@@ -36,3 +47,16 @@ def test_energy_focus_share_is_a_fraction(tmp_path):
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["metric"] == "region_energy_share" and 0.0 < metrics["value"] < 100.0
     assert metrics["invalid_states"] == 0 and metrics["checked_states"] == 9
+
+
+def test_an_energy_region_that_holds_no_element_is_refused(simulator):
+    """A region off the part: its share is 0 whatever the design, so the task is refused by name."""
+    from nma.errors import ConfigError
+    from nma.tasks.schemas import EnergyFocusTask
+    from nma.tasks.timed import energy_focus
+
+    sim = simulator("translation", quad_points=3)
+    with pytest.raises(ConfigError, match=r"task.region=\[100.0, 100.0, 110.0, 110.0\] holds no "
+                                          r"element of scene translation .*centres span x"):
+        energy_focus(EnergyFocusTask(region=[100.0, 100.0, 110.0, 110.0]), sim)
+    assert energy_focus(EnergyFocusTask(), sim).elements.sum() > 0  # the default region holds some

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from .. import checks
 from ..mechanics.energy import Tangents, quadrature
 from ..solver.equations import tangents_at
 from .mass import mass_blocks
@@ -25,13 +26,21 @@ QUASI_STATIC = 0.01  # the relative dynamic amplification below which the static
 
 def natural_frequencies(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_free=None) -> np.ndarray:
     """The lowest `count` angular frequencies omega (rad per unit time) of small vibrations about the
-    state (d, u_free) (rest where None), ascending."""
-    return natural_modes(sim, X, mat, density, count, d, u_free)[0]
+    state (d, u_free) (rest where None), ascending (arguments as natural_modes')."""
+    return _modes("natural_frequencies", sim, X, mat, density, count, d, u_free)[0]
 
 
 def natural_modes(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_free=None):
     """(omega (count,), modes (count, free dofs) M-orthonormal): the lowest natural frequencies and their
-    mode shapes about the state (d, u_free) (rest where None)."""
+    mode shapes about the state (d, u_free) (rest where None).  X (n_points, 2), mat (the
+    material's parameters), d (n_actuations,) and u_free (free dofs,) are checked as
+    Simulator.equilibrium's, density is positive, and count lies in [1, free dofs - 2] (what Lanczos
+    can find)."""
+    return _modes("natural_modes", sim, X, mat, density, count, d, u_free)
+
+
+def _modes(where, sim, X, mat, density, count, d, u_free):
+    X, mat, density, count, d, u_free = _checked(where, sim, X, mat, density, count, d, u_free)
     eqs, pattern = sim.equations, sim.backend.pattern
     d = jnp.zeros(sim.n_actuations) if d is None else jnp.asarray(d)
     u_free = jnp.zeros(sim.disc.boundary.n_dofs) if u_free is None else jnp.asarray(u_free)
@@ -46,6 +55,26 @@ def natural_modes(sim, X, mat, density: float = 1.0, count: int = 6, d=None, u_f
     return np.sqrt(np.clip(w2[order], 0.0, None)), modes[:, order].T
 
 
+def _checked(where, sim, X, mat, density, count, d, u_free):
+    """natural_modes' arguments, refused in one line naming `where` and the argument."""
+    from .checks import ranges
+
+    free = sim.disc.boundary.n_dofs
+    def array(name, value, shape):
+        return checks.array(where, name, value, shape, float64=True).astype(jnp.float64)
+
+    X = array("X", X, (sim.disc.mesh.n_points, 2))
+    mat = array("mat", mat, (sim.disc.material.n_params,))
+    sim.disc.material.check(np.asarray(mat), where)
+    density = checks.number(where, "density", density, ranges()["density"])
+    count = checks.integer(where, "count", count, f"[1, {free - 2}]")
+    if d is not None:
+        d = array("d", d, (sim.n_actuations,))
+    if u_free is not None:
+        u_free = array("u_free", u_free, (free,))
+    return X, mat, density, count, d, u_free
+
+
 def _full(A):
     """A symmetric matrix from a pattern that may hold its upper triangle only (PARDISO's)."""
     import scipy.sparse as sp
@@ -56,7 +85,9 @@ def _full(A):
 
 def dynamic_amplification(omega_1: float, period: float) -> float:
     """How far a response lags the static one at an actuation of the given period: (T_1/T)^2 / (1 - (T_1/T)^2)
-    (infinite at and past resonance)."""
+    (infinite at and past resonance).  omega_1 and period are positive."""
+    omega_1 = checks.number("dynamic_amplification", "omega_1", omega_1, "(0, inf)")
+    period = checks.number("dynamic_amplification", "period", period, "(0, inf)")
     r2 = (2.0 * np.pi / omega_1 / period) ** 2
     return float(r2 / (1.0 - r2)) if r2 < 1.0 else float("inf")
 
@@ -64,6 +95,8 @@ def dynamic_amplification(omega_1: float, period: float) -> float:
 def static_suffices(omega_1: float, period: float) -> str | None:
     """The message that the static model gives the same answer, where the actuation's shortest period is
     slow next to the lowest natural period; None where dynamics matters."""
+    omega_1 = checks.number("static_suffices", "omega_1", omega_1, "(0, inf)")
+    period = checks.number("static_suffices", "period", period, "(0, inf)")
     amp = dynamic_amplification(omega_1, period)
     if amp >= QUASI_STATIC:
         return None

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
+from .. import checks
 from ..solver.equations import Inertia
 from .options import SCHEMES
 
@@ -36,6 +37,8 @@ class Scheme:
 
     @classmethod
     def of(cls, name: str, rho_inf: float = 1.0) -> "Scheme":
+        """The scheme `name` (one of SCHEMES); rho_inf in [0, 1] (generalised_alpha's)."""
+        rho_inf = checks.number("Scheme.of", "rho_inf", rho_inf, "[0, 1]")
         if name == "newmark":
             return cls(0.0, 0.0, 0.25, 0.5)
         if name == "generalised_alpha":

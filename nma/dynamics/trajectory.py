@@ -4,10 +4,12 @@ safeguards, and the discrete adjoint sweep backwards through the steps, as one d
 Forward: the run is split into `steps` intervals of dt; an interval whose step does not converge (a
 load-step cut below solver.min_increment, the element bound, the iteration limit) is redone in 2, 4,
 ... equal steps, up to 2^max_cuts: the static solver's load-step cuts become time-step cuts.  A step
-that still fails ends the trajectory and says at which time and why; its later states hold the last
-one reached.  Each step starts Newton at the previous state, so its predictor is the linearised
-response to the step's boundary motion and inertia; its first linearisation is the last step's final
-one with the Inertia swapped (nma.solver.newton.continue_in_time), not another pass over the elements.
+that still fails ends the trajectory and says at which time, after how many intervals and why; its
+later states hold the last one reached.  Interval k runs from k dt to (k + 1) dt: the states and the
+steps are known by these indices, never by comparing times.  Each step starts Newton at the
+previous state, so its predictor is the linearised response to the step's boundary motion and
+inertia; its first linearisation is the last step's final one with the Inertia swapped
+(nma.solver.newton.continue_in_time), not another pass over the elements.
 
 Backward: the states at the start of every step are kept (3 vectors of 2 n_points floats a step,
 u, v, a, plus the step's free displacements); nothing else.  The adjoint of a step needs the factor of
@@ -30,6 +32,7 @@ from ..errors import ConfigError, SolverError
 from ..solver.batch import split_samples, stack_samples
 from ..solver.host import HostNewton
 from ..solver.status import Status
+from .checks import check_dynamics, check_run, checked_function
 from .schemes import Scheme
 from .stepping import StepKernels
 
@@ -37,14 +40,17 @@ KEPT_TRAJECTORIES = 256  # forward records awaiting their adjoint; the oldest go
 
 
 class TrajectoryInfo(NamedTuple):
-    """How a trajectory went: status (a Status: CONVERGED when every step did, else the failed step's),
-    the time it reached, its time steps (cut intervals count each of their steps), the intervals that
-    were cut, and Newton's iterations over all steps."""
+    """How a trajectory went: status (a Status: CONVERGED when every step did, else the failed
+    step's), the time it reached (the failed step's start, else the end), its time steps (cut
+    intervals count each of their steps), the intervals that were cut, Newton's iterations over all
+    steps, and the intervals completed: the states at k dt, k = 0..intervals, are solved (all
+    `steps` + 1 of them where it converged), the later ones hold the last."""
     status: jnp.ndarray
     time: jnp.ndarray
     steps: jnp.ndarray
     cuts: jnp.ndarray
     iterations: jnp.ndarray
+    intervals: jnp.ndarray
 
 
 class _Step(NamedTuple):
@@ -53,13 +59,15 @@ class _Step(NamedTuple):
     z: tuple           # (u, v, a) at its start, flat, every dof
     u_free: np.ndarray  # its solution's free dofs
     d: np.ndarray      # the actuation at its end
+    k: int             # the interval it belongs to (from k dt to (k + 1) dt)
+    j: int             # its place in that interval (0: it starts at k dt)
 
 
 class Dynamics:
     """Time stepping of a Simulator's scene under an actuation waveform (nma.dynamics.waveform).
 
     Args:
-        sim: The Simulator (a host linear backend: superlu, pardiso).
+        sim: The Simulator (any linear backend: each step's Newton is driven from the host).
         scheme: `newmark` or `generalised_alpha` (rho_inf its spectral radius at infinite frequency).
         dt: The time step; steps: how many (the trajectory's states are at k dt, k = 0..steps).
         density: Mass per unit area (the model's units).
@@ -72,9 +80,8 @@ class Dynamics:
     def __init__(self, sim, scheme: str = "newmark", rho_inf: float = 1.0, dt: float = 1.0, steps: int = 100,
                  density: float = 1.0, alpha: float = 0.0, beta: float = 0.0, waveform=None, max_cuts: int = 4,
                  v0=None, workers: int | None = None):
-        if sim.backend.traceable:
-            raise ConfigError(f"dynamics needs a host linear solver (pardiso, superlu): solver.linear="
-                              f"{sim.backend.name} solves in lockstep under vmap")
+        check_dynamics(sim, scheme, rho_inf, dt, steps, density, alpha, beta, waveform, max_cuts, v0,
+                       workers)
         if np.any(np.asarray(sim.equations.f_ext)):
             raise ConfigError("dynamics starts at rest: a scene with a dead load would start out of balance")
         if v0 is not None and (alpha or beta):
@@ -95,17 +102,18 @@ class Dynamics:
         self._kept: dict[int, list] = {}
         self._tokens = itertools.count(1)
         self._lock = threading.Lock()
-        self.function = _differentiable(self)
+        self.function = checked_function(self, _differentiable(self))
 
     @classmethod
-    def from_settings(cls, sim, s, density: float, waveform, X, mat, workers: int | None = None) -> "Dynamics":
+    def from_settings(cls, sim, s, density: float, waveform, X, mat, workers: int | None = None,
+                      omega_1: float | None = None) -> "Dynamics":
         """From a DynamicsConfig `s` (nma.schema.physics): dt null takes a 20th of the lowest natural period
         at rest, and a damping ratio becomes alpha = zeta omega, beta = zeta / omega at its frequency (the
-        lowest natural one where none is given)."""
+        lowest natural one where none is given; `omega_1`: that one, where the caller has it)."""
         from .modes import natural_frequencies
 
-        omega_1 = None
-        if s.dt is None or (s.damping_ratio is not None and s.damping_frequency is None):
+        needed = s.dt is None or (s.damping_ratio is not None and s.damping_frequency is None)
+        if omega_1 is None and needed:
             omega_1 = float(natural_frequencies(sim, X, mat, density, count=1)[0])
         dt = s.dt if s.dt is not None else 2.0 * np.pi / omega_1 / 20.0
         alpha, beta = s.alpha, s.beta
@@ -121,25 +129,27 @@ class Dynamics:
     # -- one sample, forward
     def run(self, X, coeffs, mat):
         """(u (steps + 1, n_points, 2), v (same), TrajectoryInfo, the steps kept for the adjoint)."""
+        X, coeffs, mat = check_run(self, "Dynamics.run", X, coeffs, mat, finite=False)
         k = self.kernels
         X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
         design = k.design(X, mat)
         ws = self.sim.backend.workspace()
         z = (np.asarray(k.full(jnp.zeros(len(self.free)), k.actuation(coeffs, 0.0))), self.v0, np.zeros(self.n))
         us, vs, kept = [z[0]], [z[1]], []
-        status, t, substeps, cuts, iterations, previous = Status.CONVERGED, 0.0, 0, 0, 0, None
+        status, substeps, cuts, iterations, previous = Status.CONVERGED, 0, 0, 0, None
+        t, intervals = float(self.times[-1]), self.steps
         try:
-            for _ in range(self.steps):
-                done, failed, its, previous = self._interval(X, coeffs, mat, design, z, t, ws, previous)
+            for i in range(self.steps):  # interval i: times[i] to times[i + 1], states by index
+                done, failed, its, previous = self._interval(X, coeffs, mat, design, z, i, ws,
+                                                             previous)
                 iterations += its
                 if failed is not None:  # (NewtonInfo, the time of the step that failed)
-                    status, t = int(failed[0].status), failed[1]
+                    status, t, intervals = int(failed[0].status), failed[1], i
                     break
                 kept.extend(done)
                 substeps += len(done)
                 cuts += len(done) > 1
                 last = done[-1]
-                t = last.t + last.dt
                 u1 = np.asarray(k.full(jnp.asarray(last.u_free), jnp.asarray(last.d)))
                 z = (u1, *self._next(last, u1))
                 us.append(z[0])
@@ -150,18 +160,20 @@ class Dynamics:
             us.append(us[-1])
             vs.append(vs[-1])
         shape = (self.steps + 1, -1, 2)
-        info = TrajectoryInfo(np.int32(status), np.float64(t), np.int32(substeps), np.int32(cuts), np.int32(iterations))
+        info = TrajectoryInfo(np.int32(status), np.float64(t), np.int32(substeps), np.int32(cuts),
+                              np.int32(iterations), np.int32(intervals))
         return np.stack(us).reshape(shape), np.stack(vs).reshape(shape), info, kept
 
     def _next(self, step: _Step, u1):
         return tuple(np.asarray(a) for a in self.kernels.update(jnp.asarray(u1), *(jnp.asarray(x) for x in step.z),
                                                                  step.dt))
 
-    def _interval(self, X, coeffs, mat, design, z, t, ws, previous):
-        """The steps from t to t + dt (in 1, 2, 4, ... equal steps) from the state z that the step
-        `previous` (HostNewton.time_step) ended at: (steps, None, iterations, the last step's end), or
-        where even the finest fails (None, (NewtonInfo, time), iterations, None)."""
-        k, iterations = self.kernels, 0
+    def _interval(self, X, coeffs, mat, design, z, i, ws, previous):
+        """The steps of interval i, from times[i] to times[i + 1] (in 1, 2, 4, ... equal steps),
+        from the state z that the step `previous` (HostNewton.time_step) ended at: (steps, None,
+        iterations, the last step's end), or where even the finest fails (None, (NewtonInfo, time),
+        iterations, None)."""
+        k, iterations, t = self.kernels, 0, float(self.times[i])
         for level in range(self.max_cuts + 1):
             n = 2 ** level
             h, zz, done, end = self.dt / n, z, [], previous
@@ -176,7 +188,7 @@ class Dynamics:
                 if int(info.status) != Status.CONVERGED:
                     failed = (info, t0)
                     break
-                step = _Step(t0, h, zz, np.asarray(u_free), np.asarray(d1))
+                step = _Step(t0, h, zz, np.asarray(u_free), np.asarray(d1), i, j)
                 done.append(step)
                 u1 = np.asarray(k.full(u_free, d1))
                 zz = (u1, *self._next(step, u1))
@@ -194,8 +206,10 @@ class Dynamics:
         M, C = design[1:]
         u_bar, v_bar = (np.asarray(a).reshape(self.steps + 1, -1) for a in (u_bar, v_bar))
         mat_bar, c_bar = np.zeros(mat.shape), np.zeros(coeffs.shape)
-        zb = [u_bar[-1].copy(), v_bar[-1].copy(), np.zeros(self.n)]
-        grid = len(u_bar) - 1  # the grid time the next state back is at
+        # the last state solved, at interval m's start, holds for the states after it too (a
+        # trajectory that failed in interval m): their cotangents are its own
+        m = kept[-1].k + 1 if kept else 0
+        zb = [u_bar[m:].sum(axis=0), v_bar[m:].sum(axis=0), np.zeros(self.n)]
         ws = self.sim.backend.workspace()
         try:
             for step in reversed(kept):
@@ -214,10 +228,9 @@ class Dynamics:
                 c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
                 mat_bar += np.asarray(mb)
                 zb = [np.asarray(u_b) + np.asarray(ub), np.asarray(v_b) + np.asarray(vb), np.asarray(a_b) + np.asarray(ab)]
-                if abs(step.t - self.times[grid - 1]) <= 1e-9 * self.dt:  # back at a grid time: its own cotangents
-                    grid -= 1
-                    zb[0] += u_bar[grid]
-                    zb[1] += v_bar[grid]
+                if step.j == 0:  # back at its interval's start, a grid time: its state's cotangents
+                    zb[0] += u_bar[step.k]
+                    zb[1] += v_bar[step.k]
         finally:
             self.sim.backend.release(ws)
         X_b, mat_b = k.design_vjp(X, mat, design_bar)
@@ -268,7 +281,8 @@ def _differentiable(dyn: Dynamics):
     def call(X, coeffs, mat, keep):
         m = dyn.steps + 1
         state = jax.ShapeDtypeStruct((m, dyn.n // 2, 2), X.dtype)
-        info = TrajectoryInfo(*(jax.ShapeDtypeStruct((), t) for t in (jnp.int32, X.dtype, jnp.int32, jnp.int32, jnp.int32)))
+        kinds = (jnp.int32, X.dtype, jnp.int32, jnp.int32, jnp.int32, jnp.int32)
+        info = TrajectoryInfo(*(jax.ShapeDtypeStruct((), t) for t in kinds))
         shapes = (state, state, info, jax.ShapeDtypeStruct((), jnp.int64))
         return jax.pure_callback(lambda *a: dyn.forward_batch(*a, keep=keep), shapes, X, coeffs, mat,
                                  vmap_method="broadcast_all")

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
+from .. import checks
+
 
 def smootherstep(x):
     x = jnp.clip(x, 0.0, 1.0)
@@ -30,11 +32,25 @@ class Fourier:
     ramp: float
     d_max: float
 
+    def __post_init__(self):
+        where = "Fourier"
+        checks.integer(where, "actuators", self.actuators, "[0, 1000000]")
+        checks.integer(where, "harmonics", self.harmonics, "[0, 1000]")
+        checks.number(where, "period", self.period, "(0, inf)")
+        checks.number(where, "ramp", self.ramp, "[0, inf)")
+        checks.number(where, "d_max", self.d_max, "(0, inf)")
+
     @property
     def n_coeffs(self) -> int:
         return self.actuators * (2 * self.harmonics + 1)
 
     def __call__(self, coeffs, t):
+        """Each actuator's displacement at time t from the n_coeffs coefficients (per actuator:
+        c_k0, then the cosines' and the sines' a_kj, b_kj)."""
+        if jnp.shape(coeffs) != (self.n_coeffs,):
+            raise ValueError(f"Fourier: coeffs must have shape ({self.n_coeffs},) "
+                             f"({self.actuators} actuators x (2 x {self.harmonics} harmonics + 1)), "
+                             f"got {jnp.shape(coeffs)}")
         c = coeffs.reshape(self.actuators, 2 * self.harmonics + 1)
         j = jnp.arange(1, self.harmonics + 1)
         phase = 2.0 * jnp.pi * j * t / self.period
@@ -47,6 +63,10 @@ class Fourier:
 class Pulse:
     amplitude: float
     duration: float
+
+    def __post_init__(self):
+        checks.number("Pulse", "amplitude", self.amplitude)
+        checks.number("Pulse", "duration", self.duration, "(0, inf)")
 
     def __call__(self, t):
         x = jnp.clip(t / self.duration, 0.0, 1.0)

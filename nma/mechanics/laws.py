@@ -22,8 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import checks
 from ..errors import ConfigError
-from .options import LAW_NAMES, MODES
+from ..settings import in_range
+from .options import LAW_NAMES, MATERIAL_RANGES, MODES
 
 # Ogden's psi needs sum_i c_i^beta over the eigenvalues c_i of the 2 x 2 C.  With m = tr C / 2 and
 # x^2 = 1 - det C / m^2 it is m^beta ((1 + x)^beta + (1 - x)^beta): smooth in x^2, but x = sqrt(x^2) is not
@@ -105,7 +107,7 @@ class NeoHookean(Law):
     """The paper's law, parametrised by E (its shear modulus depends on nu too): its closed forms are in
     nma.mechanics.material; Mooney-Rivlin with C01 = 0 is the same psi for fitting."""
     def ranges(self):
-        return {"E": "(0, 1e30]"}
+        return {"E": MATERIAL_RANGES["E"]}
 
 
 class MooneyRivlin(Law):
@@ -221,17 +223,70 @@ def _true_stress(law: Law, p, mode: str, lam):
     return ls[0] * g[0] - ls[2] * g[2]
 
 
+def checked_parameters(where: str, law: Law, p) -> jnp.ndarray:
+    """p as the array of `law`'s parameters (Law.names, without nu): TypeError or ConfigError naming
+    `where`, the law and what it takes where p is not that many real numbers, finite and in their
+    ranges (where concrete), or where the law has no incompressible psi (Neo-Hookean's E needs
+    nu)."""
+    if not isinstance(law, Law):
+        raise TypeError(f"{where}: law must be a Law (nma.mechanics.laws.law_of(name)), got "
+                        f"{type(law).__name__} {law!r:.80}")
+    if isinstance(law, NeoHookean):
+        raise ConfigError(f"{where}: law neo_hookean is parametrised by E and nu, not by an "
+                          "incompressible psi: take law mooney_rivlin with C10 = E / (4 (1 + nu)), "
+                          "C01 = 0")
+    names = ", ".join(law.names)
+    takes = f"law {law.name} takes [{names}]"
+    try:
+        p = checks.array(where, "p", p, (None,))
+    except ValueError as e:
+        raise ConfigError(f"{e}; {takes}") from None
+    if p.shape[0] != len(law.names):
+        raise ConfigError(f"{where}: p must hold {len(law.names)} parameters, got {p.shape[0]}: "
+                          f"{takes}")
+    if not isinstance(p, jax.core.Tracer):
+        values = dict(zip(law.names, np.asarray(p, dtype=float).tolist()))
+        for n, spec in law.ranges().items():
+            if not in_range(values[n], spec):
+                raise ConfigError(f"{where}: p = [{names}] must have {n} in {spec} "
+                                  f"(law {law.name}), got {values[n]:g}")
+        alphas = [a for n, a in values.items() if n.startswith("alpha") and abs(a) < 0.01]
+        if alphas:
+            raise ConfigError(f"{where}: law {law.name}'s exponents alpha must lie in "
+                              f"[-100, -0.01] or [0.01, 100], got {alphas[0]:g}")
+    return p
+
+
+def _checked_mode(where: str, mode) -> str:
+    if mode not in MODES:
+        raise ConfigError(f"{where}: mode must be one of {list(MODES)}, got {mode!r}")
+    return mode
+
+
 def nominal_stress(law: Law, p, mode: str, lam):
     """The engineering (first Piola) stress along 1 of the incompressible `mode` at stretch lam: what a
-    tensile test measures, the force over the undeformed section."""
+    tensile test measures, the force over the undeformed section.  p: the law's parameters
+    (Law.names); lam: a positive stretch or an array of them."""
+    p, mode = checked_parameters("nominal_stress", law, p), _checked_mode("nominal_stress", mode)
+    lam = checks.array("nominal_stress", "lam", jnp.atleast_1d(jnp.asarray(lam, float)), (None,))
+    if not isinstance(lam, jax.core.Tracer) and not np.all(np.asarray(lam) > 0):
+        raise ConfigError(f"nominal_stress: lam must hold positive stretches, got "
+                          f"{np.asarray(lam).min():g}")
     return jax.vmap(lambda l: _true_stress(law, p, mode, l) / l)(jnp.atleast_1d(jnp.asarray(lam, float)))
 
 
 def drucker_unstable(law: Law, p, stretches=(0.5, 2.0), samples: int = 201) -> str:
     """'' where d sigma / d log(lambda) > 0 (Drucker's condition for these one-parameter paths) in every mode
-    at every stretch in `stretches`; else the first mode and stretch where it fails."""
+    at every stretch in `stretches` (low, high: 0 < low < high); else the first mode and stretch
+    where it fails."""
     from ..runtime import configure_jax
     configure_jax()  # float64: a config is checked before any solve has set it
+    p = checked_parameters("drucker_unstable", law, p)
+    lo, hi = checks.array("drucker_unstable", "stretches", stretches, (2,)).tolist()
+    if not 0 < lo < hi:
+        raise ConfigError(f"drucker_unstable: stretches must be (low, high) with 0 < low < high, "
+                          f"got {[lo, hi]}")
+    samples = checks.integer("drucker_unstable", "samples", samples, "[2, 1000000]")
     lam = np.exp(np.linspace(np.log(stretches[0]), np.log(stretches[1]), samples))
     for mode in MODES:
         slope = np.asarray(jax.vmap(jax.grad(lambda e: _true_stress(law, p, mode, jnp.exp(e))))(jnp.log(lam)))

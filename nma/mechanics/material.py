@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+from .. import checks
 from ..errors import ConfigError
 from ..settings import check_range, in_range
 from .laws import NEO_HOOKEAN, Law
@@ -42,14 +43,18 @@ class Material:
         """The length of the parameter array: the law's parameters and nu."""
         return len(self.law.names) + 1
 
-    def check(self, params) -> None:
-        """Refuses concrete parameters outside the law's ranges (ValueError naming the entry)."""
+    def check(self, params, where: str = "equilibrium") -> None:
+        """Refuses concrete parameters of another count than the law's and nu, or outside the law's
+        ranges (ValueError naming `where`, the law and the entry)."""
         names = (*self.law.names, "nu")
+        if len(params) != len(names):
+            raise ValueError(f"{where}: mat must be law {self.law.name}'s [{', '.join(names)}]: "
+                             f"{len(names)} numbers, got {len(params)}")
         ranges = {**self.law.ranges(), "nu": MATERIAL_RANGES["nu"]}
         for name, number in zip(names, params):
             if not in_range(float(number), ranges[name]):
-                raise ValueError(f"equilibrium: mat = [{', '.join(names)}] must have {name} in {ranges[name]}, "
-                                 f"got {float(number):g}")
+                raise ValueError(f"{where}: mat = [{', '.join(names)}] must have {name} in "
+                                 f"{ranges[name]}, got {float(number):g}")
 
     def moduli(self, params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
         """The initial shear and the bulk modulus (mu, kappa) of the parameters."""
@@ -80,12 +85,15 @@ class Material:
 def material(E: float, nu: float) -> jnp.ndarray:
     """[E, nu] as a float64 array, checked against the material's ranges (MATERIAL_RANGES)."""
     for name, value in (("E", E), ("nu", nu)):
-        check_range(f"material.{name}", float(value), MATERIAL_RANGES[name])
+        check_range(f"material.{name}", checks.real("material", name, value), MATERIAL_RANGES[name])
     return jnp.array([E, nu], dtype=jnp.float64)
 
 
 def from_lame(mu: float, kappa: float) -> jnp.ndarray:
-    """[E, nu] for a given shear modulus mu and (paper-formula) bulk modulus kappa."""
+    """[E, nu] for a given shear modulus mu and (paper-formula) bulk modulus kappa, both
+    positive."""
+    mu = checks.number("from_lame", "mu", mu, "(0, inf)")
+    kappa = checks.number("from_lame", "kappa", kappa, "(0, inf)")
     E = 9.0 * kappa * mu / (3.0 * kappa + mu)
     nu = (3.0 * kappa - 2.0 * mu) / (2.0 * (3.0 * kappa + mu))
     return material(E, nu)

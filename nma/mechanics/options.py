@@ -10,9 +10,15 @@ from ..settings import bounded
 # element's mean dilatation (locking-free as nu -> 0.5)
 FORMULATIONS = ("displacement", "mixed")
 # the Neo-Hookean material's admissible moduli: nu = 0.5 is incompressible, which a displacement model
-# cannot represent; E up to 1e30 (any unit system's stiffest solid), beyond which the energy and its
-# residual overflow float64 and a solve could not tell equilibrium from overflow
-MATERIAL_RANGES = {"E": "(0, 1e30]", "nu": "(-1, 0.5)"}
+# cannot represent; E from 1e-30 to 1e30 (any unit system's softest and stiffest solid), beyond
+# which the energy, its residual and their round-off leave float64's normal numbers and a solve
+# could not tell equilibrium from underflow or overflow
+MATERIAL_RANGES = {"E": "[1e-30, 1e30]", "nu": "(-1, 0.5)"}
+# mass per unit area: absolute, and against the material's initial shear modulus mu0 (mu0 / density,
+# a squared wave speed, sets the natural frequencies and the time step); outside these the mass
+# matrix and the modal solve (ARPACK, shift-invert) leave float64's range
+DENSITY_RANGE = "[1e-30, 1e30]"
+WAVE_SPEED_SQUARED_RANGE = "[1e-40, 1e40]"
 # the hyperelastic laws (nma.mechanics.laws), by the name a config gives
 LAW_NAMES = ("neo_hookean", "mooney_rivlin", "yeoh", "ogden", "gent")
 # the homogeneous incompressible tests a material is characterised by (nma.mechanics.laws.mode_stretches)

@@ -12,6 +12,7 @@ from ..errors import ConfigError
 from ..mechanics.options import LAW_NAMES, MATERIAL_RANGES, MODES, STRESS_UNITS
 from ..settings import Schema, bounded, choice, option
 from .physics import ContactConfig, DynamicsConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
+from .effect import check_fit, check_simulate
 from .scene import SceneConfig
 from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
 from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
@@ -78,6 +79,7 @@ class SimulateConfig:
     output: OutputConfig = field(default_factory=OutputConfig)
 
     def __post_init__(self):
+        check_simulate(self)
         if self.actuation is None:
             return
         if not all(math.isfinite(a) for a in self.actuation):
@@ -174,6 +176,7 @@ class FitConfig(Schema):
     output: Optional[str] = None            # the material file to write (conf/material/<name>.yaml); null: print only
 
     def check(self):
+        check_fit(self)
         if not os.path.isfile(self.data):
             self.fail("data", "must name a CSV file", self.data)
         if self.output is not None and os.path.lexists(self.output):

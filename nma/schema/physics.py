@@ -5,8 +5,10 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar, Dict, List, Optional
 
 from ..geometry.options import Resolution
-from ..mechanics.options import FORMULATIONS, LAW_NAMES, MATERIAL_RANGES, STRESS_UNITS, NEARLY_INCOMPRESSIBLE, ContactSettings
-from ..dynamics.options import SCHEMES
+from ..mechanics.options import (DENSITY_RANGE, FORMULATIONS, LAW_NAMES, MATERIAL_RANGES,
+                                 NEARLY_INCOMPRESSIBLE, STRESS_UNITS, WAVE_SPEED_SQUARED_RANGE,
+                                 ContactSettings)
+from ..dynamics.options import RANGES, SCHEMES
 from ..solver.options import CORRECTORS, WARM_START_NEEDS_HOST, NewtonOptions
 from ..errors import ConfigError
 from ..settings import Schema, bounded, choice, like, with_options
@@ -32,8 +34,11 @@ class MaterialConfig(Schema):
     name: Optional[str] = None  # what the material is, in words (a shipped elastomer's product name)
     source: Optional[str] = None  # where the parameters come from: the data and the fit (conf/material/<elastomer>.yaml)
     fit: Dict[str, Any] = field(default_factory=dict, metadata={"doc": "the fit's record (nma.fit): data, range, errors"})
-    density: float = bounded(1.0, "(0, 1e12]", doc="mass per unit area, in the scene's units (stress x time^2 / "
-                             "length^2): what dynamics moves; a static solve does not use it")
+    density: float = bounded(1.0, DENSITY_RANGE, doc="mass per unit area, in the scene's units "
+                             "(stress x time^2 / length^2): what dynamics and the natural "
+                             "frequencies move; the shear modulus over it (a squared wave speed) "
+                             "must lie in "
+                             f"{WAVE_SPEED_SQUARED_RANGE}")
     formulation: str = choice("auto", ("auto", *FORMULATIONS), doc="mixed: the volume term at each element's mean "
                               "dilatation, which does not lock as nu -> 0.5 (nma.mechanics.energy); auto: mixed "
                               f"from nu {NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)")
@@ -54,6 +59,28 @@ class MaterialConfig(Schema):
                           "(its file sets them), or set material.E=null and the parameters", self.E)
             from ..mechanics.laws import law_of  # JAX: only for the laws that need a stability check
             law_of(self.law, self.parameters).check(dict(self.parameters), self.nu, tuple(self.stretches))
+        self._check_density()
+
+    def _check_density(self):
+        """The density against the initial shear modulus mu0: mu0 / density (a squared wave speed,
+        which sets the natural frequencies and the time step) in WAVE_SPEED_SQUARED_RANGE."""
+        if self.law == "neo_hookean":
+            mu0 = self.E / (2.0 * (1.0 + self.nu))
+        else:
+            import numpy as np
+            from ..mechanics.laws import law_of
+            law = law_of(self.law, self.parameters)
+            mu0 = float(law.shear_modulus(np.array([float(self.parameters[n]) for n in law.names])))
+        if not mu0 > 0:  # the law's own checks speak of it
+            return
+        lo, hi = (float(v) for v in WAVE_SPEED_SQUARED_RANGE[1:-1].split(","))
+        d_lo, d_hi = (float(v) for v in DENSITY_RANGE[1:-1].split(","))
+        allowed = f"[{max(d_lo, mu0 / hi):.3g}, {min(d_hi, mu0 / lo):.3g}]"
+        if not lo <= mu0 / self.density <= hi:
+            self.fail("density", f"must be in {allowed} for this material: its shear modulus "
+                      f"{mu0:.3g} over the density (a squared wave speed) must lie in "
+                      f"{WAVE_SPEED_SQUARED_RANGE}, where the mass matrix and the natural "
+                      "frequencies stay within float64", self.density)
 
     @property
     def values(self) -> dict:
@@ -91,20 +118,20 @@ class DynamicsConfig(Schema):
     prefix: ClassVar[str] = "dynamics"
     scheme: str = choice("off", ("off", *SCHEMES), doc="newmark: average acceleration (no numerical damping); "
                          "generalised_alpha: second order, high frequencies damped to rho_inf")
-    rho_inf: float = bounded(0.8, "[0, 1]", doc="generalised_alpha's spectral radius at infinite frequency (1: none "
+    rho_inf: float = bounded(0.8, RANGES["rho_inf"], doc="generalised_alpha's spectral radius at infinite frequency (1: none "
                              "damped, 0: damped at once)")
-    dt: Optional[float] = bounded(None, "(0, inf)", doc="the time step; null: a 20th of the lowest natural period "
+    dt: Optional[float] = bounded(None, RANGES["dt"], doc="the time step; null: a 20th of the lowest natural period "
                                   "at rest")
-    steps: int = bounded(100, "[1, 1000000]", doc="time steps")
-    alpha: float = bounded(0.0, "[0, inf)", doc="Rayleigh damping's mass-proportional part, C = alpha M + beta K_0")
-    beta: float = bounded(0.0, "[0, inf)", doc="Rayleigh damping's stiffness-proportional part (K_0: the tangent at rest)")
+    steps: int = bounded(100, RANGES["steps"], doc="time steps")
+    alpha: float = bounded(0.0, RANGES["alpha"], doc="Rayleigh damping's mass-proportional part, C = alpha M + beta K_0")
+    beta: float = bounded(0.0, RANGES["beta"], doc="Rayleigh damping's stiffness-proportional part (K_0: the tangent at rest)")
     damping_ratio: Optional[float] = bounded(None, "[0, 1]", doc="in place of alpha and beta: this ratio of critical "
                                              "damping at damping_frequency (alpha = zeta omega, beta = zeta / omega)")
     damping_frequency: Optional[float] = bounded(None, "(0, inf)", doc="the angular frequency damping_ratio holds at "
                                                  "(rad per unit time); null: the lowest natural frequency at rest")
     ramp: Optional[float] = bounded(None, "[0, inf)", doc="nma.simulate: the time over which the actuation rises "
                                     "(a smootherstep) and then holds; null: the lowest natural period")
-    max_cuts: int = bounded(4, "[0, 20]", doc="a time step that fails is redone in 2, 4, ... 2^max_cuts steps")
+    max_cuts: int = bounded(4, RANGES["max_cuts"], doc="a time step that fails is redone in 2, 4, ... 2^max_cuts steps")
 
     def check(self):
         if self.damping_ratio is not None and (self.alpha or self.beta):
@@ -246,6 +273,12 @@ def material_model(nu: float) -> MaterialModel:
     return NEARLY_INCOMPRESSIBLE_MODEL if nu >= NEARLY_INCOMPRESSIBLE else COMPRESSIBLE
 
 
+def auto_contact(settings) -> bool:
+    """contact=auto decided: by the material's compressibility, or by the scene where it leaves it open."""
+    model = material_model(settings.material.nu)
+    return bool(settings.scene.contact) if model.contact is None else model.contact
+
+
 def resolve_auto(settings):
     """Command settings (material, fidelity, solver, contact, scene) with every choice left to auto made:
     by the material's compressibility (material_model) and, for contact, by the scene where the material
@@ -257,7 +290,7 @@ def resolve_auto(settings):
     if fidelity.inversion_barrier is None:
         fidelity = replace(fidelity, inversion_barrier=model.inversion_barrier)
     if contact.enabled is None:
-        contact = replace(contact, enabled=bool(settings.scene.contact) if model.contact is None else model.contact)
+        contact = replace(contact, enabled=auto_contact(settings))
     return replace(settings, material=material, solver=settings.solver.filled(model.solver), fidelity=fidelity,
                    contact=contact)
 

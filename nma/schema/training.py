@@ -70,7 +70,9 @@ class TrainerConfig(Schema):
     min_feature: Optional[float] = bounded(None, "(0, 10000]", doc="the narrowest ligament (material between two "
                                            "boundary curves) the design may have, in millimetres at part.scale, "
                                            "which it needs; enforced by the feature penalty "
-                                           "(nma.geometry.features); null: no bound (the width is still reported)")
+                                           "(nma.geometry.features); one wider than any design "
+                                           "of the scene can have is refused (nma.schema.effect); "
+                                           "null: no bound (the width is still reported)")
     feature_penalty: float = bounded(10.0, "[0, inf)", doc="with min_feature: weight of a loss term, the sum over "
                                      "pairs of boundary curves of (max(0, min_feature - width) / min_feature)^2 "
                                      "(unitless: the same in any scene units); 0: the bound is reported, not enforced")

@@ -4,12 +4,14 @@ Host backends (SuperLU, PARDISO) factorise scipy matrices assembled from the ele
 sample's Newton solve holds its own `Workspace` (its latest factor), so concurrent samples never
 share a factor and the adjoint of a sample reuses that sample's last factor: it preconditions
 iterative refinement against the exact Hessian at the solution (a few back-substitutions), and a
-refactorisation happens only if that does not converge.  The `dense` backend is pure JAX: its Newton
-loop is traced, and a batch runs in lockstep under vmap (parallel on a GPU).
+refactorisation happens only if that does not converge.  The `dense` backend is pure JAX: its static
+Newton loop is traced, and a batch runs in lockstep under vmap (parallel on a GPU); a time step's
+Newton is driven from the host as the host backends' are, each factor a dense LU.
 """
 from __future__ import annotations
 
 import copy
+import functools
 import glob
 import logging
 import os
@@ -19,7 +21,9 @@ import time
 from collections import defaultdict
 from contextlib import contextmanager
 
+import jax
 import jax.numpy as jnp
+import jax.scipy.linalg  # noqa: F401  (jax.scipy.linalg.lu_factor)
 import numpy as np
 import scipy.sparse.linalg as spla
 
@@ -244,14 +248,44 @@ class PardisoBackend(HostBackend):
         return int(ws.factor.solver.iparm[22])
 
 
+class DenseWorkspace(Workspace):
+    """One sample's dense LU (JAX's, on the accelerator where there is one), for Newton driven from
+    the host (time steps: nma.dynamics): factorise, then solve with the latest factor."""
+
+    def factorise(self, kel, shift: float = 0.0) -> None:
+        with self.backend.clock.time("factorisation"):
+            shift = jnp.asarray(shift, kel.elements.dtype)
+            self.factor = jax.block_until_ready(self.backend.lu(kel, shift))
+        self.backend.count("factorisations")
+
+    def solve(self, b) -> np.ndarray:
+        with self.backend.clock.time("back_substitution"):
+            x = self.backend.lu_solve(self.factor, jnp.asarray(b, jnp.float64))
+            return np.asarray(x, dtype=np.float64)
+
+    def _adjoint(self, kel, rhs, refine: bool) -> np.ndarray:
+        """Solve K x = rhs with K from kel: factorised afresh (dense LU is exact to round-off)."""
+        rhs = np.asarray(rhs, dtype=np.float64)
+        if np.linalg.norm(rhs) == 0.0:
+            return np.zeros_like(rhs)
+        self.factorise(kel)
+        self.backend.count("adjoint_refactorisations")
+        return self.solve(rhs)
+
+
 @LINEAR_SOLVERS.register("dense")
 class DenseBackend:
-    """Pure JAX: dense assembly and LU solve. Traceable, vmap-parallel; meant for GPUs."""
+    """Pure JAX: dense assembly and LU solve. Traceable, vmap-parallel; meant for GPUs.  A static
+    solve's Newton loop is traced; a time step's (nma.dynamics) is driven from the host as the host
+    backends' are, each factor a dense LU (DenseWorkspace).  The natural frequencies take the
+    scene's sparse pattern (`pattern`, built when first asked)."""
     name = "dense"
     traceable = True  # the Newton loop is traced; batches run in lockstep under vmap
+    reports_inertia = False
 
     def __init__(self, disc: Discretisation):
         rows, cols = element_entries(disc)
+        self.disc = disc
         self.n = disc.boundary.n_dofs
         E = disc.mesh.elem_points.reshape(-1, 9).shape[0] * 18 * 18
         keep = np.flatnonzero((rows[:E] >= 0) & (cols[:E] >= 0))
@@ -259,7 +293,35 @@ class DenseBackend:
         # each contact block's entries, a Dirichlet dof's row or column past the matrix (dropped)
         self.contact_rows, self.contact_cols = (jnp.asarray(np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18))
                                                 for a in (rows, cols))
-        self.stats = {}  # counts happen inside traced code; nothing to report
+        # counts of the host-driven solves (time steps); a traced solve counts nothing
+        self._lock = threading.Lock()
+        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "newton_solves": 0,
+                      "newton_iterations": 0}
+        self.clock = Stopwatch()
+        self.lu = jax.jit(lambda kel, shift: jax.scipy.linalg.lu_factor(self._matrix(kel, shift)))
+        self.lu_solve = jax.jit(lambda factor, b: jax.scipy.linalg.lu_solve(factor, b))
+
+    @functools.cached_property
+    def pattern(self):
+        """The scene's sparse pattern (nma.solver.assembly): for what needs matrices on the host."""
+        return sparse_pattern(self.disc, upper=False)
+
+    # -- Newton driven from the host (HostNewton): time steps
+    def count(self, what: str, n: int = 1) -> None:
+        with self._lock:
+            self.stats[what] = self.stats.get(what, 0) + n
+
+    def workspace(self) -> DenseWorkspace:
+        return DenseWorkspace(self)
+
+    def release(self, ws: Workspace) -> None:
+        ws.factor = None
+
+    def inertia(self, ws: Workspace) -> None:
+        return None
+
+    def negative_eigenvalues(self, kel) -> None:
+        return None
 
     def _matrix(self, kel, shift):
         Ke = kel.elements

@@ -28,7 +28,9 @@ and the slow descent along the soft valley of a nearly-mechanism design; one who
 residual is, or just was, within FINISHING_RESIDUAL (1000) times the tolerance gets up to
 FINISHING_ITERS more.  Convergence: ||g_f|| <= rtol * f_ref + atol * k_ref * L, where f_ref is the
 norm of the linearised out-of-balance force of the full load and k_ref * L a force scale of the
-structure.  The load steps before the last may close at a looser path_rtol instead (0, the default:
+structure, never below tolerance_floor; the norms are taken scaled (norm), so that a very soft
+material's residual does not underflow to 0.  The load steps before the last may close at a looser
+path_rtol instead (0, the default:
 rtol): the next predictor's right-hand side carries the residual left, but where several equilibria
 lie near one actuation (walls in contact) the looser path can end on another (docs/explanation/physical-states.md).  A
 warm solve (setup's `start`) walks the same way from another sample's equilibrium: the prescribed
@@ -143,7 +145,7 @@ def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
     """The tolerance, the stiffness scale k_ref and the force scale f_ref, from the element tangents at
     rest: f_ref the norm of the linearised out-of-balance force of the full load, k_ref the largest
     diagonal entry."""
-    f_ref = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
+    f_ref = norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + norm(eqs.f_free)
     return _tolerance(eqs, opts, p, kel, f_ref)
 
 
@@ -152,14 +154,43 @@ def _step_scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, g0):
     blocks): f_ref the norm of its linearised out-of-balance force at its start (the previous state's
     residual under this step's inertia, and the boundary's move), plus the static solve's force scale of
     the actuation at its end: a step meets at least the test a static solve of that actuation meets."""
-    static = jnp.linalg.norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + jnp.linalg.norm(eqs.f_free)
-    return _tolerance(eqs, opts, p, kel, jnp.linalg.norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)) + static)
+    static = norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + norm(eqs.f_free)
+    return _tolerance(eqs, opts, p, kel, norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)) + static)
 
 
 def _tolerance(eqs: Equations, opts: NewtonOptions, p: Problem, kel, f_ref):
+    """rtol f_ref + atol k_ref size, never below tolerance_floor: a solve converges against a scale
+    that cannot vanish."""
     kdiag = jnp.max(jnp.stack([jnp.max(jnp.abs(jnp.diagonal(K, axis1=1, axis2=2)), initial=0.0)
                                for _, K in eqs.blocks(kel)]))
-    return opts.rtol * f_ref + opts.atol * kdiag * p.size, kdiag, f_ref
+    tol = opts.rtol * f_ref + opts.atol * kdiag * p.size
+    return jnp.maximum(tol, tolerance_floor(tol.dtype)), kdiag, f_ref
+
+
+def tolerance_floor(dtype) -> float:
+    """The smallest tolerance: a residual below it has round-off (eps of it) under float's smallest
+    normal number, so that it cannot be told from 0 (about 1e-292 in float64; every material in its
+    ranges has a tolerance far above it)."""
+    info = jnp.finfo(dtype)
+    return float(info.tiny) / float(info.eps)
+
+
+EXPONENT_BITS = 0x7FF0000000000000  # a float64's exponent field
+
+
+def norm(v):
+    """||v||_2 without underflow or overflow: v divided by the power of two at or below its largest
+    entry, the norm of that times it.  A power of two scales exactly, so wherever jnp.linalg.norm(v)
+    neither underflows nor overflows this is the same number, bit for bit; where its squares would
+    underflow (forces of a very soft material) it is not 0."""
+    if v.dtype != jnp.float64:
+        return jnp.linalg.norm(v)
+    m = jnp.max(jnp.abs(v), initial=0.0)
+    bits = jax.lax.bitcast_convert_type(m, jnp.uint64) & jnp.uint64(EXPONENT_BITS)
+    scale = jax.lax.bitcast_convert_type(bits, jnp.float64)
+    scale = jnp.where(scale > 0, scale, jnp.finfo(jnp.float64).tiny)  # m subnormal: least normal
+    ok = jnp.isfinite(m) & (m > 0)
+    return jnp.where(ok, scale * jnp.linalg.norm(jnp.where(ok, v / scale, v)), jnp.linalg.norm(v))
 
 
 def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: State, at=None) -> Linearised:
@@ -169,7 +200,7 @@ def linearise(eqs: Equations, opts: NewtonOptions, p: Problem, s: State, at=None
     E0, g, kel = (eqs.linearise(p.quad, s.u, p.boundary(s.lam), p.load(s.lam), p.mat, _contact_normal(eqs, opts, s),
                                   p.inertia)
                   if at is None else at)
-    rnorm = jnp.linalg.norm(g)
+    rnorm = norm(g)
     first = (s.it == 0) & (s.tol == 0)  # a cold start, at rest, or a time step: the scales come from this tangent
     scales = (lambda _: _scales(eqs, opts, p, kel)) if p.inertia is None else (lambda _: _step_scales(eqs, opts, p, kel, g))
     tol, k_ref, f_ref = jax.lax.cond(first, scales,

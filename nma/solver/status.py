@@ -137,8 +137,10 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
     """The error of one failed solve: how far it got and why (a trajectory's, nma.dynamics: at which time)."""
     status = int(info.status)
     if hasattr(info, "time"):  # a TrajectoryInfo: its time steps solve as static solves do
-        return SolverError(f"{context}time stepping failed: the step at time {float(info.time):.6g} did not "
-                           f"converge, even cut into smaller steps (dynamics.max_cuts): {Status.describe(status)}; "
+        return SolverError(f"{context}time stepping failed: the step at time "
+                           f"{float(info.time):.6g} (time step {int(info.intervals) + 1}) did not "
+                           f"converge, even cut into smaller steps (dynamics.max_cuts): "
+                           f"{Status.describe(status)}; "
                            f"{int(info.steps)} steps had converged ({int(info.cuts)} intervals cut), "
                            f"{int(info.iterations)} Newton iterations in all", info)
     msg = (f"{context}Newton solve failed: {Status.describe(status)}; converged up to load factor "

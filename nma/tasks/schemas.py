@@ -5,6 +5,7 @@ TASK_SCHEMAS: the task name -> its schema."""
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Dict, List, Optional
 
@@ -181,6 +182,10 @@ class SpecTask(TaskConfig):
             self.check_values(name, t)
         if self.low is not None and not all(lo < hi for lo, hi in zip(self.low, self.high)):
             self.fail("high", f"must exceed task.low {self.low} in every entry", self.high)
+        if self.dataset and not os.path.isfile(self.dataset):
+            relative = ("" if os.path.isabs(self.dataset) else
+                        f", read from the current directory {os.getcwd()}")
+            self.fail("dataset", f"{self.dataset} cannot be read: it is not a file{relative}")
 
     def check_values(self, name: str, t) -> None:
         """A descriptor the goal can meet: angles within [-pi, pi], an area that stays positive."""

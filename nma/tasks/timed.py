@@ -23,6 +23,7 @@ from ..dynamics.mass import mass_blocks
 from ..dynamics.modes import natural_frequencies, static_suffices
 from ..dynamics.trajectory import Dynamics
 from ..dynamics.waveform import Fourier, Pulse
+from ..errors import ConfigError
 from ..mechanics.energy import quadrature
 from .base import Task
 from .schemas import EnergyFocusTask, FollowPathTask
@@ -275,4 +276,9 @@ def energy_focus(cfg: EnergyFocusTask, sim) -> EnergyFocus:
     centres = X[np.asarray(sim.disc.mesh.elem_points).reshape(-1, 9)].mean(axis=1)
     x0, y0, x1, y1 = cfg.region
     inside = (centres[:, 0] >= x0) & (centres[:, 0] <= x1) & (centres[:, 1] >= y0) & (centres[:, 1] <= y1)
+    if not inside.any():  # a share of nothing: no design can raise it
+        lo, hi = centres.min(axis=0), centres.max(axis=0)
+        raise ConfigError(f"task.region={list(cfg.region)} holds no element of scene {sim.disc.spec.name} "
+                          f"(an element is in it where its centre is; the centres span x {lo[0]:.3g} to "
+                          f"{hi[0]:.3g}, y {lo[1]:.3g} to {hi[1]:.3g} at rest)")
     return EnergyFocus(cfg, inside.astype(float))

@@ -233,7 +233,7 @@ def _sha256(path: Path) -> str | None:
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
     except OSError:
-        return None  # the task says so, naming task.dataset, when it is built
+        return None  # a missing file is refused with the task's settings; an unreadable one, read
 
 
 def fidelity_record(disc, fidelity) -> dict:

@@ -1,0 +1,88 @@
+"""The front door of Dynamics (nma.dynamics.trajectory): its settings on construction and a
+trajectory's arrays on each call, each refused in one line that names the argument and what is
+allowed (nma.checks, as Simulator.equilibrium's).  The ranges are the config's, declared once
+(nma.dynamics.options.RANGES, nma.mechanics.options.DENSITY_RANGE)."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import checks
+from ..errors import ConfigError
+from ..mechanics.options import DENSITY_RANGE
+from .options import RANGES, SCHEMES
+
+
+def ranges() -> dict[str, str]:
+    """The intervals of the dynamics' settings, by name: the config's (RANGES, and the material's
+    density)."""
+    return {**RANGES, "density": DENSITY_RANGE}
+
+
+def check_dynamics(sim, scheme, rho_inf, dt, steps, density, alpha, beta, waveform, max_cuts, v0,
+                   workers) -> None:
+    """Refuses Dynamics(...)'s arguments outside their ranges: TypeError or ConfigError naming
+    the argument."""
+    where, spec = "Dynamics", ranges()
+    if scheme not in SCHEMES:
+        raise ConfigError(f"{where}: scheme must be one of {list(SCHEMES)}, got {scheme!r}")
+    for name, value in (("rho_inf", rho_inf), ("dt", dt), ("density", density), ("alpha", alpha),
+                        ("beta", beta)):
+        checks.number(where, name, value, spec[name])
+    checks.integer(where, "steps", steps, spec["steps"])
+    checks.integer(where, "max_cuts", max_cuts, spec["max_cuts"])
+    if workers is not None:
+        checks.integer(where, "workers", workers, "[1, 4096]")
+    n_act = sim.n_actuations
+    if not callable(waveform):
+        raise TypeError(f"{where}: waveform must be a function f(coeffs, t) -> the scene's {n_act} "
+                        "actuations at time t (nma.dynamics.waveform.Fourier), got "
+                        f"{type(waveform).__name__} {waveform!r:.80}")
+    actuators = getattr(waveform, "actuators", None)
+    if isinstance(actuators, int) and actuators != n_act:
+        raise ConfigError(f"{where}: waveform drives {actuators} actuators; scene "
+                          f"{sim.disc.spec.name} has {n_act}")
+    if v0 is not None:
+        n = sim.disc.mesh.n_points
+        checks.array(where, "v0", v0, (2 * n,) if np.shape(v0) == (2 * n,) else (n, 2))
+
+
+def check_run(dyn, where: str, X, coeffs, mat, finite: bool = True):
+    """(X, coeffs, mat) as float64 arrays, refused (TypeError, ValueError naming the argument) where
+    one has another shape or holds other than real numbers, where the coefficients are not the
+    waveform's count or it does not give the scene's actuations from them, or where the material is
+    out of its law's ranges.  With `finite`, a concrete argument that is not finite is refused too;
+    without (or traced), a trajectory from one ends at once with status NONFINITE_INPUT."""
+    sim = dyn.sim
+
+    def array(name, value, shape):
+        return checks.array(where, name, value, shape, float64=True, finite=finite)
+
+    X_ = array("X", X, (sim.disc.mesh.n_points, 2))
+    mat_ = array("mat", mat, (sim.disc.material.n_params,))
+    count = getattr(dyn.waveform, "n_coeffs", None)
+    coeffs_ = array("coeffs", coeffs, (count if isinstance(count, int) else None,))
+    if not isinstance(mat_, jax.core.Tracer) and np.all(np.isfinite(np.asarray(mat_))):
+        sim.disc.material.check(np.asarray(mat_, dtype=np.float64), where)
+    try:
+        out = jax.eval_shape(dyn.waveform, jax.ShapeDtypeStruct(coeffs_.shape, jnp.float64), 0.0)
+    except (TypeError, ValueError, IndexError) as e:
+        raise ValueError(f"{where}: the waveform cannot take coeffs of shape {coeffs_.shape}: "
+                         f"{str(e).splitlines()[0]}") from None
+    if getattr(out, "shape", None) != (sim.n_actuations,):
+        raise ValueError(f"{where}: the waveform must give the scene's {sim.n_actuations} "
+                         f"actuations, got shape {getattr(out, 'shape', type(out).__name__)} from "
+                         f"coeffs of shape {coeffs_.shape}")
+    return tuple(a.astype(jnp.float64) for a in (X_, coeffs_, mat_))
+
+
+def checked_function(dyn, trajectory):
+    """`trajectory(X, coeffs, mat)` (nma.dynamics.trajectory._differentiable) behind the front
+    door: shapes and dtypes checked (under vmap: one sample's), concrete arguments' finiteness and
+    the material's ranges too; other real precisions taken as float64."""
+    def function(X, coeffs, mat):
+        return trajectory(*check_run(dyn, "Dynamics.function", X, coeffs, mat))
+
+    function.__doc__ = trajectory.__doc__
+    return function
