@@ -23,6 +23,7 @@ from pathlib import Path
 import matplotlib
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # experiments/results.py, run as a script or imported
+import guard  # noqa: E402
 import results  # noqa: E402
 
 matplotlib.use("Agg")
@@ -69,7 +70,8 @@ def summarise_digital_mnist(out: Path):
     summary = {"experiment": "digital_mnist", "lookup_digits_correct": m["lookup"]["value"],
                "digit_exact_match": {p: m[p]["value"] for p in ("fit", "finetune")},
                "digit_segment_accuracy": {p: m[p]["digit_segment_accuracy"] for p in m},
-               "seconds": {**seconds, "total": sum(seconds.values())}, "runs": {p: str(out / p) for p in m}}
+               "seconds": {**seconds, "total": sum(seconds.values())},
+               "runs": {p: results.relative(str(out / p)) for p in m}}
     (out / "comparison.json").write_text(json.dumps(summary, indent=1))
     labels = {"lookup": "1 lookup table (10 actuation vectors + colours)", "fit": "2 network fitted to the table",
               "finetune": "3 network + colours fine-tuned end to end"}
@@ -104,7 +106,8 @@ def reevaluate(out: Path, run: str, extra: list[str] = (), solve: bool = True) -
     record = json.loads(done[-1].read_text())
     at = record["evaluated_fidelity"]
     (out / "reevaluated.json").write_text(json.dumps({
-        "run": run, "file": str(done[-1]), "fidelity": "14 x 5", "value": at["metric"], "samples": record["samples"],
+        "run": run, "file": results.relative(str(done[-1])), "fidelity": "14 x 5",
+        "value": at["metric"], "samples": record["samples"],
         "failed_solves": at["failed_solves"], "invalid_states": at.get("invalid_states")}, indent=1))
 
 
@@ -123,6 +126,13 @@ def publish(name: str, out: Path, summary: dict, figures: list[Path]) -> None:
         report += (f"\nThe compared design ({r['run']}) re-evaluated at {r['fidelity']}: {r['value']:.4g} over "
                    f"{r['samples']} samples, {r['failed_solves']} failed solves, {r['invalid_states']} states not physical.\n")
     results.write(name, summary, report, figures, json.loads((out / "stamp.json").read_text()))
+    record = guard.load_record()  # the record rises with a better result; a worse one is said
+    for line in guard.update(record, [name]):
+        print(f"record raised: {line}")
+    guard.save_record(record)
+    for problem in guard.check(record):
+        if problem.startswith(f"{name}."):
+            print(f"worse than the record: {problem}", file=sys.stderr)
 
 
 def train(name: str, run_dir: Path, overrides: list[str]) -> dict:
@@ -198,7 +208,7 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
                "no_actuation": joint["no_actuation"],
                "total_seconds": total, "failed_solves": [joint["failed_solves"], baseline["failed_solves"]],
                "invalid_states": [joint.get("invalid_states"), baseline.get("invalid_states")],
-               "runs": {r: str(out / r) for r in runs}}
+               "runs": {r: results.relative(str(out / r)) for r in runs}}
     rows = [("joint (network + geometry)", coarse)]
     if refinements:
         summary.update(joint_before_refinement=coarse["value"],
@@ -225,9 +235,13 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
         joint_evals += evals(m[r], offset)
         offset, before = offset + m[r]["step"], m[r]
     for r, ev, label in ((joint, joint_evals, "joint"), (baseline, evals(baseline), "baseline")):
-        ax[0].plot(np.sort(r["per_sample"]), label=label)
+        ax[0].plot(np.sort(r["per_sample"]), "o-", ms=4, label=label)  # a single sample shows too
         ax[1].plot(*zip(*ev), "o-", ms=3, label=label)
-    ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]", title="final error per target")
+    ax[0].set(xlabel="evaluation sample (sorted)", ylabel=f"{name} [{unit}]",
+              title="final value per evaluation sample")
+    samples = max(len(joint["per_sample"]), len(baseline["per_sample"]))
+    ax[0].set_xlim(-0.5, samples - 0.5)
+    ax[0].set_xticks(range(0, samples, max(1, samples // 8)))  # whole samples
     ax[1].set(xlabel="step", ylabel=f"{name} [{unit}]", title="evaluation during training")
     ax[1].axhline(joint["no_actuation"], color="grey", ls=":", label="no actuation")
     for a in ax:
@@ -238,6 +252,8 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
     figures = [out / "comparison.png"]
     if experiment == "shape_matching":
         figures.append(figure_shapes_side_by_side(out))
+    if experiment == "dynamic_follow":
+        figures.append(figure_paths_side_by_side(out))
     publish(experiment, out, summary, figures)
     print((out / "comparison.md").read_text())
 
@@ -271,6 +287,65 @@ def figure_shapes_side_by_side(out: Path, n: int = 8) -> Path:
     fig.savefig(out / "shapes.png", dpi=130)
     plt.close(fig)
     return out / "shapes.png"
+
+
+def follow_paths(run: Path) -> list[dict]:
+    """Each converged evaluation sample of a follow_path run, from its saved fields (eval_<i>.h5:
+    the descriptor and the tracked point over the window; trajectories.h5: the times) and its
+    config: the path the point traced, its target (nma.tasks.timed.FollowPath.targets: the circle
+    of radius r through the point's rest position, from direction phi, once per
+    task.period_steps) and their mean distance."""
+    import h5py
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+    first, last = cfg.task.window
+    start = np.asarray(cfg.scene.tracked[cfg.task.point], float)  # the tracked point at rest
+    with h5py.File(run / "fields" / "trajectories.h5") as f:
+        times = np.asarray(f["times"])
+    omega = 2 * np.pi / (cfg.task.period_steps * (times[1] - times[0]))
+    paths = []
+    for path in sorted((run / "fields").glob("eval_*.h5")):
+        with h5py.File(path) as f:
+            reached, (r, phi) = np.asarray(f.attrs["observed"]), np.asarray(f.attrs["descriptor"])
+        angle = omega * times[first:last + 1] + phi
+        circle = np.stack([np.cos(angle) - np.cos(phi), np.sin(angle) - np.sin(phi)], -1)
+        target = start + r * circle
+        paths.append({"sample": int(path.stem.split("_")[1]), "r": float(r), "phi": float(phi),
+                      "rest": start, "reached": reached, "target": target,
+                      "error": float(np.mean(np.linalg.norm(reached - target, axis=-1)))})
+    return paths
+
+
+def figure_paths_side_by_side(out: Path, n: int = 8) -> Path:
+    """The path the tracked point traces against its moving target over the goal's window, for
+    the same evaluation samples, by the joint design (top) and the frozen one (bottom):
+    out/paths.png."""
+    runs = {run: follow_paths(out / run)[:n] for run in ("joint", "baseline")}
+    cols = max(1, *(len(p) for p in runs.values()))
+    fig, axes = plt.subplots(2, cols, figsize=(max(7.0, 1.9 * cols + 0.8), 4.5), squeeze=False)
+    for row, (run, paths) in enumerate(runs.items()):
+        for ax in axes[row]:
+            ax.axis("off")
+        for ax, p in zip(axes[row], paths):
+            ax.axis("on")
+            ax.plot(*p["rest"], "+", color="black", ms=6, label="at rest")
+            ax.plot(*p["target"].T, "--", color="#1f3fbf", lw=1.1, label="target")
+            ax.plot(*p["reached"].T, "-", color="#2ca02c", lw=1.1, label="traced")
+            ax.plot(*p["target"][0], "o", color="#1f3fbf", ms=3)
+            ax.plot(*p["reached"][0], "o", color="#2ca02c", ms=3)
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=5)
+            ax.set_title(f"{'joint' if row == 0 else 'frozen'}: r {p['r']:.2f}, phi "
+                         f"{np.degrees(p['phi']):.0f} deg\nerror {p['error']:.3f}", fontsize=7)
+    axes[0, 0].legend(loc="lower left", fontsize=6)
+    fig.suptitle("follow_path: the pointer over the goal's window (solid) against its moving "
+                 "target (dashed)\ndots: the window's start; +: the pointer at rest; error: their "
+                 "mean distance (cell = 5)", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "paths.png", dpi=130)
+    plt.close(fig)
+    return out / "paths.png"
 
 
 if __name__ == "__main__":
