@@ -220,18 +220,23 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     assert resumed.sim.warm_starts.verdict == whole.sim.warm_starts.verdict == (stats["audits"], 0)
 
 
+def under_stop_on_signals(grace: float, body: list[str]):
+    """A Python process that runs `body` (lines) inside stop_on_signals(grace): (its result, its
+    wall seconds)."""
+    code = "\n".join(["import os, signal, time", "from nma.signals import stop_on_signals",
+                      f"with stop_on_signals(grace={grace}):", *("    " + line for line in body)])
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    return proc, time.monotonic() - t0
+
+
 def test_a_stop_signal_ends_a_step_that_never_finishes_within_its_grace():
     """SIGTERM asks a run to stop after its current step; a step that does not finish (here the main
     thread sleeps on, as a step stuck in compiled code would) is not waited for past the grace period:
     the process ends with 128 + SIGTERM and says why."""
-    code = ("import os, signal, time\n"
-            "from nma.signals import stop_on_signals\n"
-            "with stop_on_signals(grace=1.0):\n"
-            "    os.kill(os.getpid(), signal.SIGTERM)\n"
-            "    time.sleep(60)\n")
-    t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 128 + signal.SIGTERM and time.monotonic() - t0 < 30, proc.stderr
+    proc, seconds = under_stop_on_signals(1.0, ["os.kill(os.getpid(), signal.SIGTERM)",
+                                                "time.sleep(60)"])
+    assert proc.returncode == 128 + signal.SIGTERM and seconds < 30, proc.stderr
     assert "SIGTERM: the current step did not finish within trainer.stop_grace = 1 s" in proc.stderr
 
 
@@ -239,16 +244,11 @@ def test_a_second_ctrl_c_ends_the_run_at_once_in_one_line():
     """A first Ctrl-C asks for a stop after the current step; a second ends the run at once (exit
     130), in a line and without a traceback, even while the step runs on (here: the main thread
     sleeps)."""
-    code = ("import os, signal, time\n"
-            "from nma.signals import stop_on_signals\n"
-            "with stop_on_signals(grace=60.0):\n"
-            "    os.kill(os.getpid(), signal.SIGINT)\n"
-            "    time.sleep(0.5)\n"
-            "    os.kill(os.getpid(), signal.SIGINT)\n"
-            "    time.sleep(60)\n")
-    t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 128 + signal.SIGINT and time.monotonic() - t0 < 30, proc.stderr
+    proc, seconds = under_stop_on_signals(60.0, ["os.kill(os.getpid(), signal.SIGINT)",
+                                                 "time.sleep(0.5)",
+                                                 "os.kill(os.getpid(), signal.SIGINT)",
+                                                 "time.sleep(60)"])
+    assert proc.returncode == 128 + signal.SIGINT and seconds < 30, proc.stderr
     assert proc.stderr.splitlines() == [
         "SIGINT: stopping after the current step, with a checkpoint (Ctrl-C again to interrupt at "
         "once)",
