@@ -122,7 +122,8 @@ def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
     assert result["converged"] is False and result["valid"] is False and result["error"] in line
     assert not dyn["completed"] and not dyn["every_state_physical"]
     assert dyn["final_vs_static"] is None
-    assert 1 <= dyn["states_reached"] <= 4
+    failed_step = int(re.search(r"time step (\d+) of 4", line).group(1))
+    assert dyn["states_reached"] == failed_step  # step k (from 1) fails: states 0 .. k - 1 solved
     assert dyn["valid_states"]["checked_states"] == dyn["states_reached"]
     with h5py.File(tmp_path / "trajectory.h5") as f:
         assert f["u"].shape[0] == dyn["states_reached"]
