@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all repro-check settings-reference clean
+.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all repro-check settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -26,6 +26,13 @@ lock:               ## refresh requirements.lock to the newest versions pyprojec
 		--upgrade --quiet --custom-compile-command "make lock" -o $(LOCK)
 	$(MAKE) install
 	$(MAKE) test PYTHON=$(VENV)/bin/python
+
+format:             ## format the code to the project's width (ruff, 100 columns, pyproject.toml)
+	$(PYTHON) -m ruff format nma experiments tests
+
+lint:               ## check the format and the lint rules (the fast suite runs this too)
+	$(PYTHON) -m ruff format --check nma experiments tests
+	$(PYTHON) -m ruff check nma experiments tests
 
 test:               ## fast tests (the CI run), on up to 4 worker processes
 	$(PYTHON) -m pytest -q $(PARALLEL)

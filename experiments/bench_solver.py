@@ -8,6 +8,7 @@ The speed/accuracy trade of the discretisation knobs is experiments/fidelity_stu
 Each scene runs in its own process so that its peak memory is its own.  Times are wall-clock
 seconds on this machine: min and median over actuations drawn as in training, d ~ U(-2, 2).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,7 +32,7 @@ def stats(xs):
 
 def build(scene, linear="pardiso"):
     from nma import config
-    from nma.geometry.discretise import Resolution, discretise
+    from nma.discretise import Resolution, discretise
     from nma.schema import scene_from_config
     from nma.simulator import Simulator
     from nma.solver.options import NewtonOptions
@@ -45,13 +46,20 @@ def objective(sim):
     import jax
     import jax.numpy as jnp
 
-    w = jax.random.normal(jax.random.PRNGKey(0), (sim.disc.mesh.n_points, 2)) / sim.disc.mesh.n_points
+    w = (
+        jax.random.normal(jax.random.PRNGKey(0), (sim.disc.mesh.n_points, 2))
+        / sim.disc.mesh.n_points
+    )
 
     def loss(params, d, mat):
         X = sim.reference_points(params)
         eq = sim.equilibrium(X, d, mat)
         tracked = sim.tracked(X, eq.u)
-        out = sum(jnp.sum(jnp.abs(p - 1.0)) for p in tracked.values()) if tracked else jnp.sum(w * (X + eq.u))
+        out = (
+            sum(jnp.sum(jnp.abs(p - 1.0)) for p in tracked.values())
+            if tracked
+            else jnp.sum(w * (X + eq.u))
+        )
         return out, eq
 
     return loss
@@ -89,19 +97,35 @@ def bench_scene(scene, repeats, linear="pardiso"):
             raise eq.error(f"{scene} d={np.asarray(d).round(3).tolist()}: ")
         iters.append(int(info.iterations))
         steps.append(int(info.load_steps))
-    out = {"scene": scene, "linear": linear, "dofs": sim.disc.boundary.n_dofs, "build_seconds": build_s,
-           "first_call_seconds": first, "forward_seconds": stats(t_fwd), "forward_grad_seconds": stats(t_grad),
-           "newton_iterations": stats(iters), "load_steps": stats(steps)}
+    out = {
+        "scene": scene,
+        "linear": linear,
+        "dofs": sim.disc.boundary.n_dofs,
+        "build_seconds": build_s,
+        "first_call_seconds": first,
+        "forward_seconds": stats(t_fwd),
+        "forward_grad_seconds": stats(t_grad),
+        "newton_iterations": stats(iters),
+        "load_steps": stats(steps),
+    }
     if scene == "translation":  # the largest actuation of the task, |d| = d_max = 4
         big = []
         for d in ([4.0, -4.0], [-4.0, 4.0], [4.0, 4.0], [-4.0, -4.0]):
             t0 = time.perf_counter()
             (_, eq), _ = jax.block_until_ready(fwd_grad(params, jnp.array(d), mat))
             info = eq.info
-            big.append({"actuation": d, "seconds": time.perf_counter() - t0, "converged": bool(eq.converged), "newton_iterations": int(info.iterations),
-                        "load_steps": int(info.load_steps)})
+            big.append(
+                {
+                    "actuation": d,
+                    "seconds": time.perf_counter() - t0,
+                    "converged": bool(eq.converged),
+                    "newton_iterations": int(info.iterations),
+                    "load_steps": int(info.load_steps),
+                }
+            )
         out["largest_actuation"] = big
-    out["linear_solver_counts"] = dict(sim.backend.stats)  # adjoint_refactorisations 0: factor reused
+    # adjoint_refactorisations 0: factor reused
+    out["linear_solver_counts"] = dict(sim.backend.stats)
     out["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
@@ -115,7 +139,9 @@ def child(args):
 
 def spawn(*extra):
     cmd = [sys.executable, __file__, "--child", *extra]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}
+    )
     if proc.returncode:
         raise RuntimeError(f"{' '.join(extra)} failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -126,7 +152,9 @@ def fmt(s):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--scene", default="translation")
     ap.add_argument("--linear", default="pardiso")
@@ -138,23 +166,39 @@ def main():
         return child(args)
     repeats = 3 if args.quick else args.repeats
     report = {"machine": {"cpus": os.cpu_count()}, "scenes": {}, "backends": {}}
-    print(f"{'scene':16s} {'dofs':>5s} {'build':>6s} {'first':>6s} {'forward min/med':>16s} "
-          f"{'fwd+grad min/med':>17s} {'iters':>6s} {'steps':>5s} {'peak MB':>8s}")
+    print(
+        f"{'scene':16s} {'dofs':>5s} {'build':>6s} {'first':>6s} {'forward min/med':>16s} "
+        f"{'fwd+grad min/med':>17s} {'iters':>6s} {'steps':>5s} {'peak MB':>8s}"
+    )
     for scene in SCENES:
         r = spawn("--scene", scene, "--repeats", str(repeats))
         report["scenes"][scene] = r
-        print(f"{scene:16s} {r['dofs']:5d} {r['build_seconds']:6.2f} {r['first_call_seconds']:6.2f} "
-              f"{fmt(r['forward_seconds']):>16s} {fmt(r['forward_grad_seconds']):>17s} "
-              f"{r['newton_iterations']['median']:6.1f} {r['load_steps']['median']:5.1f} {r['peak_memory_mb']:8.0f}",
-              flush=True)
+        print(
+            f"{scene:16s} {r['dofs']:5d} {r['build_seconds']:6.2f} {r['first_call_seconds']:6.2f} "
+            f"{fmt(r['forward_seconds']):>16s} {fmt(r['forward_grad_seconds']):>17s} "
+            f"{r['newton_iterations']['median']:6.1f} {r['load_steps']['median']:5.1f} "
+            f"{r['peak_memory_mb']:8.0f}",
+            flush=True,
+        )
     big = report["scenes"]["translation"]["largest_actuation"]
-    print("\ntranslation at |d| = 4:", ", ".join(
-        f"{b['actuation']}: {b['seconds']:.2f}s ({b['newton_iterations']} it, {b['load_steps']} steps)" for b in big))
+    print(
+        "\ntranslation at |d| = 4:",
+        ", ".join(
+            f"{b['actuation']}: {b['seconds']:.2f}s ({b['newton_iterations']} it, "
+            f"{b['load_steps']} steps)"
+            for b in big
+        ),
+    )
     print("\nlinear backends on translation (forward+gradient, min / median s):")
     for linear in ("pardiso", "superlu"):
         r = spawn("--scene", "translation", "--linear", linear, "--repeats", str(repeats))
-        report["backends"][linear] = {k: r[k] for k in ("forward_seconds", "forward_grad_seconds", "first_call_seconds")}
-        print(f"  {linear:8s} forward {fmt(r['forward_seconds'])}   forward+grad {fmt(r['forward_grad_seconds'])}")
+        report["backends"][linear] = {
+            k: r[k] for k in ("forward_seconds", "forward_grad_seconds", "first_call_seconds")
+        }
+        print(
+            f"  {linear:8s} forward {fmt(r['forward_seconds'])}   forward+grad "
+            f"{fmt(r['forward_grad_seconds'])}"
+        )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2))

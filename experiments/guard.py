@@ -13,6 +13,7 @@ band (METRICS below, each band with why it is that wide).  The record only rises
 record (and of git's history of it) sees why a result moved.  CI runs the check on what results/
 holds (tests/test_guard.py).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,24 +39,40 @@ class Metric:
 # Bands: what the same command gives on another machine of this kind (a training run is
 # deterministic on one machine; another CPU rounds differently and a long run ends elsewhere).
 _PATH = "2% of the best: the spread of reruns of the same design on other machines"
-_DIGITS = ("0.01 of the digits: the binomial standard error of an exact-match rate near 0.93 over "
-           "1,000 digits is 0.008")
+_DIGITS = (
+    "0.01 of the digits: the binomial standard error of an exact-match rate near 0.93 over "
+    "1,000 digits is 0.008"
+)
 METRICS: dict[str, list[Metric]] = {
-    "translation": [Metric("joint", "lower", 0.006, "10% of the best: reruns on other CPUs"),
-                    Metric("reevaluated.value", "lower", 0.006, "as the metric it re-solves")],
-    "rotation_single": [Metric("joint", "lower", 0.13, "10% of the best: reruns on other CPUs"),
-                        Metric("reevaluated.value", "lower", 0.13, "as the metric it re-solves")],
-    "rotation_double": [Metric("joint", "lower", 0.11, "10% of the best: reruns on other CPUs"),
-                        Metric("reevaluated.value", "lower", 0.11, "as the metric it re-solves")],
-    "shape_matching": [Metric("joint", "lower", 0.005, "5% of the best: reruns on other CPUs"),
-                       Metric("reevaluated.value", "lower", 0.005, "as the metric it re-solves")],
-    "digital_mnist": [Metric("lookup_digits_correct", "higher", 0.0, "a count of ten: no noise"),
-                      Metric("digit_exact_match.fit", "higher", 0.01, _DIGITS),
-                      Metric("digit_exact_match.finetune", "higher", 0.01, _DIGITS)],
-    "dynamic_follow": [Metric("joint", "lower", 0.0075, _PATH),
-                       Metric("reevaluated.value", "lower", 0.0075, _PATH)],
-    "dynamic_energy": [Metric("joint", "higher", 1.0, "1 point of the share: reruns on other CPUs"),
-                       Metric("reevaluated.value", "higher", 1.0, "as the metric it re-solves")],
+    "translation": [
+        Metric("joint", "lower", 0.006, "10% of the best: reruns on other CPUs"),
+        Metric("reevaluated.value", "lower", 0.006, "as the metric it re-solves"),
+    ],
+    "rotation_single": [
+        Metric("joint", "lower", 0.13, "10% of the best: reruns on other CPUs"),
+        Metric("reevaluated.value", "lower", 0.13, "as the metric it re-solves"),
+    ],
+    "rotation_double": [
+        Metric("joint", "lower", 0.11, "10% of the best: reruns on other CPUs"),
+        Metric("reevaluated.value", "lower", 0.11, "as the metric it re-solves"),
+    ],
+    "shape_matching": [
+        Metric("joint", "lower", 0.005, "5% of the best: reruns on other CPUs"),
+        Metric("reevaluated.value", "lower", 0.005, "as the metric it re-solves"),
+    ],
+    "digital_mnist": [
+        Metric("lookup_digits_correct", "higher", 0.0, "a count of ten: no noise"),
+        Metric("digit_exact_match.fit", "higher", 0.01, _DIGITS),
+        Metric("digit_exact_match.finetune", "higher", 0.01, _DIGITS),
+    ],
+    "dynamic_follow": [
+        Metric("joint", "lower", 0.0075, _PATH),
+        Metric("reevaluated.value", "lower", 0.0075, _PATH),
+    ],
+    "dynamic_energy": [
+        Metric("joint", "higher", 1.0, "1 point of the share: reruns on other CPUs"),
+        Metric("reevaluated.value", "higher", 1.0, "as the metric it re-solves"),
+    ],
 }
 
 
@@ -100,18 +117,23 @@ def check(record: dict) -> list[str]:
             now = None if result is None else value(result, metric.path)
             if entry is None:
                 if now is not None:
-                    problems.append(f"{name}.{metric.path}: {now:.4g} has no record "
-                                    f"(python experiments/guard.py --update)")
+                    problems.append(
+                        f"{name}.{metric.path}: {now:.4g} has no record "
+                        f"(python experiments/guard.py --update)"
+                    )
                 continue
             if now is None:
-                problems.append(f"{name}.{metric.path}: recorded at {entry['best']:.4g}, missing "
-                                f"from results/{name}/result.json")
+                problems.append(
+                    f"{name}.{metric.path}: recorded at {entry['best']:.4g}, missing "
+                    f"from results/{name}/result.json"
+                )
             elif worse(metric, now, entry["best"]):
                 problems.append(
                     f"{name}.{metric.path}: {now:.4g} is worse than the best recorded "
                     f"{entry['best']:.4g} (at {entry['commit'][:7]}) by more than its band "
                     f"{metric.band:g} ({metric.why}); a deliberate change: "
-                    f"python experiments/guard.py --accept {name} --reason '...'")
+                    f"python experiments/guard.py --accept {name} --reason '...'"
+                )
     return problems
 
 
@@ -147,20 +169,29 @@ def accept(record: dict, name: str, reason: str) -> list[str]:
     for metric in METRICS[name]:
         now = value(result, metric.path)
         if now is not None:
-            record.setdefault(name, {})[metric.path] = {"best": now, "commit": made_at,
-                                                        "accepted": reason}
+            record.setdefault(name, {})[metric.path] = {
+                "best": now,
+                "commit": made_at,
+                "accepted": reason,
+            }
             lines.append(f"{name}.{metric.path}: {now:.4g} ({reason})")
     return lines
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     group = ap.add_mutually_exclusive_group()
-    group.add_argument("--update", action="store_true",
-                       help="raise the record where results/ is better")
-    group.add_argument("--accept", choices=sorted(METRICS), metavar="NAME",
-                       help="a deliberate change: NAME's record becomes results/NAME (--reason)")
+    group.add_argument(
+        "--update", action="store_true", help="raise the record where results/ is better"
+    )
+    group.add_argument(
+        "--accept",
+        choices=sorted(METRICS),
+        metavar="NAME",
+        help="a deliberate change: NAME's record becomes results/NAME (--reason)",
+    )
     ap.add_argument("--reason", help="why an accepted result moved (kept in the record)")
     args = ap.parse_args()
     record = load_record()

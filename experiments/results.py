@@ -1,12 +1,14 @@
-"""Results as generated artefacts: each reproduction writes results/<name>/ (report.md, result.json and its
-figures), stamped with the commit, date, machine and command that produced it, and the README's results
-table is generated from them.
+"""Results as generated artefacts: each reproduction writes results/<name>/ (report.md, result.json
+and its figures), stamped with the commit, date, machine and command that produced it, and the
+README's results table is generated from them.
 
-    python experiments/results.py            # rewrites README.md's results table from results/*/result.json
+    # rewrites README.md's results table from results/*/result.json
+    python experiments/results.py
     python experiments/results.py --check    # exits 1 where README.md's table differs
 
 tests/test_docs.py checks that the README's table is what this script writes from results/.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,11 +24,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "results"
 README = ROOT / "README.md"
-BEGIN, END = "<!-- results table: python experiments/results.py -->", "<!-- end of results table -->"
+BEGIN, END = (
+    "<!-- results table: python experiments/results.py -->",
+    "<!-- end of results table -->",
+)
 ROWS = [  # (results/<name>, the README's label)
-    ("translation", "translation"), ("rotation_single", "rotation, single"), ("rotation_double", "rotation, double"),
-    ("shape_matching", "pore shape matching"), ("digital_mnist", "digital MNIST"),
-    ("dynamic_follow", "in time: a circle followed"), ("dynamic_energy", "in time: an impulse focused")]
+    ("translation", "translation"),
+    ("rotation_single", "rotation, single"),
+    ("rotation_double", "rotation, double"),
+    ("shape_matching", "pore shape matching"),
+    ("digital_mnist", "digital MNIST"),
+    ("dynamic_follow", "in time: a circle followed"),
+    ("dynamic_energy", "in time: an impulse focused"),
+]
 
 
 def cpu_model() -> str:
@@ -40,17 +50,24 @@ def cpu_model() -> str:
 
 
 def stamp(command: list[str], wall_seconds: float) -> dict:
-    """Who made a result: the commit (with -dirty where the tree had changes), the date (UTC), the machine
-    and the command, and how long it took."""
+    """Who made a result: the commit (with -dirty where the tree had changes), the date (UTC), the
+    machine and the command, and how long it took."""
+
     def git(*args):
-        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(
+            ["git", *args], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip()
 
     commit = git("rev-parse", "HEAD") or "unknown"
     if git("status", "--porcelain", "--untracked-files=no"):
         commit += "-dirty"
-    return {"commit": commit, "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-            "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "system": platform.platform()},
-            "command": relative(" ".join(command)), "wall_seconds": round(wall_seconds, 1)}
+    return {
+        "commit": commit,
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "system": platform.platform()},
+        "command": relative(" ".join(command)),
+        "wall_seconds": round(wall_seconds, 1),
+    }
 
 
 def relative(value):
@@ -67,8 +84,8 @@ def relative(value):
 
 
 def write(name: str, summary: dict, report: str, figures: list[Path], stamped: dict) -> Path:
-    """results/<name>/: result.json (the summary and its stamp), report.md (`report` and the stamp) and
-    copies of `figures`; paths inside the repository relative to it."""
+    """results/<name>/: result.json (the summary and its stamp), report.md (`report` and the stamp)
+    and copies of `figures`; paths inside the repository relative to it."""
     summary, report, stamped = relative(summary), relative(report), relative(stamped)
     out = RESULTS / name
     out.mkdir(parents=True, exist_ok=True)
@@ -77,7 +94,8 @@ def write(name: str, summary: dict, report: str, figures: list[Path], stamped: d
     (out / "report.md").write_text(
         report.rstrip() + "\n\n"
         f"Made by `{stamped['command']}` at commit {stamped['commit']} on {stamped['date']}, "
-        f"{machine['cpu']} ({machine['cores']} cores), in {stamped['wall_seconds'] / 60:.1f} min.\n")
+        f"{machine['cpu']} ({machine['cores']} cores), in {stamped['wall_seconds'] / 60:.1f} min.\n"
+    )
     for figure in figures:
         shutil.copyfile(figure, out / figure.name)
     return out
@@ -88,25 +106,44 @@ def _row(name: str, label: str) -> str:
     minutes = f"{r['stamp']['wall_seconds'] / 60:.1f} min"
     fine = r.get("reevaluated")
     if name == "digital_mnist":
-        again = f" ({fine['value']:.3f} on {fine['samples']})" if fine else ""  # nma.evaluate's, where run
-        return f"| {label} | held-out digits shown exactly | {r['digit_exact_match']['finetune']:.3f}{again} | | {minutes} |"
+        # nma.evaluate's, where run
+        again = f" ({fine['value']:.3f} on {fine['samples']})" if fine else ""
+        return (
+            f"| {label} | held-out digits shown exactly | "
+            f"{r['digit_exact_match']['finetune']:.3f}{again} | | {minutes} |"
+        )
     again = ""
     if fine:  # the states a finer model finds not physical are said beside its value
-        unphysical = f"; {fine['invalid_states']} of {fine['samples']} not physical" if fine["invalid_states"] else ""
+        unphysical = (
+            f"; {fine['invalid_states']} of {fine['samples']} not physical"
+            if fine["invalid_states"]
+            else ""
+        )
         again = f" ({fine['value']:#.3g}{unphysical})"
     unit = "deg" if r["unit"].startswith("deg") else "%" if r["unit"].startswith("%") else ""
     value = lambda v: f"{v:#.3g}{' ' + unit if unit else ''}"  # noqa: E731
-    metric = {"mean_pointer_error": "mean pointer error (cell = 5)", "mean_angle_error_deg": "mean angle error",
-              "shape_error": "shape error (mean pore radii)", "mean_path_error": "mean path error (cell = 5)",
-              "region_energy_share": "kinetic energy in the target region"}.get(r["metric"], r["metric"])
-    return f"| {label} | {metric} | {value(r['joint'])}{again} | {value(r['baseline'])} | {minutes} |"
+    metric = {
+        "mean_pointer_error": "mean pointer error (cell = 5)",
+        "mean_angle_error_deg": "mean angle error",
+        "shape_error": "shape error (mean pore radii)",
+        "mean_path_error": "mean path error (cell = 5)",
+        "region_energy_share": "kinetic energy in the target region",
+    }.get(r["metric"], r["metric"])
+    return (
+        f"| {label} | {metric} | {value(r['joint'])}{again} | {value(r['baseline'])} | {minutes} |"
+    )
 
 
 def table() -> str:
     """The README's results table, from results/*/result.json."""
     rows = [_row(name, label) for name, label in ROWS if (RESULTS / name / "result.json").is_file()]
-    return "\n".join(["| experiment | metric | learned design | geometry frozen | wall time |",
-                      "|---|---|---|---|---|", *rows])
+    return "\n".join(
+        [
+            "| experiment | metric | learned design | geometry frozen | wall time |",
+            "|---|---|---|---|---|",
+            *rows,
+        ]
+    )
 
 
 def readme_with_table(text: str) -> str:
@@ -118,13 +155,21 @@ def readme_with_table(text: str) -> str:
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--check", action="store_true", help="exit 1 where README.md's table is not the results'")
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--check", action="store_true", help="exit 1 where README.md's table is not the results'"
+    )
     args = ap.parse_args()
     text = README.read_text()
     new = readme_with_table(text)
     if args.check:
-        sys.exit(0 if new == text else "README.md's results table is stale: python experiments/results.py")
+        sys.exit(
+            0
+            if new == text
+            else "README.md's results table is stale: python experiments/results.py"
+        )
     README.write_text(new)
     print(table())
 

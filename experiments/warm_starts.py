@@ -1,17 +1,21 @@
-"""Do warm starts land on the cold solve's equilibrium?  Training steps with every warm solve audited.
+"""Do warm starts land on the cold solve's equilibrium?  Training steps with every warm solve
+audited.
 
-    python experiments/warm_starts.py                  # writes outputs/studies/warm_starts.{json,md}
+    # writes outputs/studies/warm_starts.{json,md}
+    python experiments/warm_starts.py
     python experiments/warm_starts.py --runs shape_matching --steps 20
     python experiments/warm_starts.py --runs translation=outputs/repro/translation/joint
 
-Each run takes `--steps` training steps of its reproduction config (from the initial network, or from
-a trained run's newest checkpoint with `<name>=<run dir>`) with solver.warm_start=true and every warm
-solve also solved cold (solver.warm_audit=1), warm starts never stopped: the cold answer is taken
-wherever the two differ, so the steps are those of a cold run to the solver's tolerance.  Recorded per
-run: how many warm solves land on the cold solve's equilibrium (displacements within 1e-6 and 1e-8 of
-the cold ones, max norm relative to the largest), the energies of the two equilibria where they differ,
-and the Newton iterations per solve, warm and cold.  It writes its results under outputs/.
+Each run takes `--steps` training steps of its reproduction config (from the initial network, or
+from a trained run's newest checkpoint with `<name>=<run dir>`) with solver.warm_start=true and
+every warm solve also solved cold (solver.warm_audit=1), warm starts never stopped: the cold answer
+is taken wherever the two differ, so the steps are those of a cold run to the solver's tolerance.
+Recorded per run: how many warm solves land on the cold solve's equilibrium (displacements within
+1e-6 and 1e-8 of the cold ones, max norm relative to the largest), the energies of the two
+equilibria where they differ, and the Newton iterations per solve, warm and cold.  It writes its
+results under outputs/.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,8 +24,12 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-EXPERIMENTS = {"translation": "repro_translation", "rotation_double": "repro_rotation_double",
-               "shape_matching": "repro_shape_matching", "digital_mnist": "repro_mnist_lookup"}
+EXPERIMENTS = {
+    "translation": "repro_translation",
+    "rotation_double": "repro_rotation_double",
+    "shape_matching": "repro_shape_matching",
+    "digital_mnist": "repro_mnist_lookup",
+}
 
 
 def audit(name: str, init_from: str | None, steps: int) -> dict:
@@ -32,8 +40,14 @@ def audit(name: str, init_from: str | None, steps: int) -> dict:
     from nma.train.runs import make_trainer, validate
 
     register()
-    overrides = [f"experiment={EXPERIMENTS[name]}", "logger=none", "trainer.progress=false", "solver.warm_start=true",
-                 "solver.warm_audit=1", *([f"trainer.init_from={init_from}"] if init_from else [])]
+    overrides = [
+        f"experiment={EXPERIMENTS[name]}",
+        "logger=none",
+        "trainer.progress=false",
+        "solver.warm_start=true",
+        "solver.warm_audit=1",
+        *([f"trainer.init_from={init_from}"] if init_from else []),
+    ]
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     trainer = make_trainer(validate(cfg), Path(tempfile.mkdtemp(prefix="nma-warm-")))
@@ -44,27 +58,46 @@ def audit(name: str, init_from: str | None, steps: int) -> dict:
     st = warm.stats
     others = warm.other_equilibria
     lower = [o for o in others if o["energy_warm"] < o["energy_cold"]]
-    return {"init_from": init_from or "initial network", "steps": steps, **st,
-            "iterations_per_warm_solve": st["warm_iterations"] / max(st["warm_solves"], 1),
-            "iterations_per_cold_solve": st["cold_iterations"] / max(st["cold_solves"], 1),
-            "other_equilibria": others, "other_with_lower_energy": len(lower)}
+    return {
+        "init_from": init_from or "initial network",
+        "steps": steps,
+        **st,
+        "iterations_per_warm_solve": st["warm_iterations"] / max(st["warm_solves"], 1),
+        "iterations_per_cold_solve": st["cold_iterations"] / max(st["cold_solves"], 1),
+        "other_equilibria": others,
+        "other_with_lower_energy": len(lower),
+    }
 
 
 def table(results: dict) -> str:
-    rows = ["| run | from | steps | warm solves | on the cold equilibrium (1e-6 / 1e-8) | the others: warm energy "
-            "lower | largest difference | Newton iterations per solve, warm / cold |", "|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| run | from | steps | warm solves | on the cold equilibrium (1e-6 / 1e-8) | the others: "
+        "warm energy "
+        "lower | largest difference | Newton iterations per solve, warm / cold |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in results.items():
-        rows.append(f"| {name} | {r['init_from']} | {r['steps']} | {r['warm_solves']} | {r['audits_same']} / "
-                    f"{r['audits_within_1e-8']} of {r['audits']} | {r['other_with_lower_energy']} of "
-                    f"{len(r['other_equilibria'])} | {r['audit_largest_difference']:.2g} | "
-                    f"{r['iterations_per_warm_solve']:.1f} / {r['iterations_per_cold_solve']:.1f} |")
+        rows.append(
+            f"| {name} | {r['init_from']} | {r['steps']} | {r['warm_solves']} | "
+            f"{r['audits_same']} / "
+            f"{r['audits_within_1e-8']} of {r['audits']} | {r['other_with_lower_energy']} of "
+            f"{len(r['other_equilibria'])} | {r['audit_largest_difference']:.2g} | "
+            f"{r['iterations_per_warm_solve']:.1f} / {r['iterations_per_cold_solve']:.1f} |"
+        )
     return "\n".join(rows)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", nargs="+", default=list(EXPERIMENTS), metavar="NAME[=RUN_DIR]",
-                    help=f"of {list(EXPERIMENTS)}, each optionally from a trained run")
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--runs",
+        nargs="+",
+        default=list(EXPERIMENTS),
+        metavar="NAME[=RUN_DIR]",
+        help=f"of {list(EXPERIMENTS)}, each optionally from a trained run",
+    )
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "studies" / "warm_starts.json")
     args = ap.parse_args()

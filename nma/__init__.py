@@ -1,2 +1,4 @@
-"""nma: neuromechanical autoencoders, a differentiable isogeometric elasticity simulator and platform."""
+"""nma: neuromechanical autoencoders, a differentiable isogeometric elasticity simulator and
+platform."""
+
 __version__ = "0.1.0"

@@ -3,6 +3,7 @@
 `load("scene", "translation")` is the option's YAML merged onto its schema (nma/schema/) and
 checked, as a plain dict: what Hydra would compose for that group, without Hydra.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,10 +15,18 @@ from . import schema
 from .errors import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
-GROUP_SCHEMAS = {"scene": schema.SceneConfig, "fidelity": schema.Fidelity, "solver": schema.SolverConfig,
-                 "contact": schema.ContactConfig, "material": schema.MaterialConfig,
-                 "model": schema.ModelConfig, "optim": schema.OptimConfig, "trainer": schema.TrainerConfig,
-                 "logger": schema.LoggerConfig}
+GROUP_SCHEMAS = {
+    "scene": schema.SceneConfig,
+    "fidelity": schema.Fidelity,
+    "solver": schema.SolverConfig,
+    "contact": schema.ContactConfig,
+    "material": schema.MaterialConfig,
+    "model": schema.ModelConfig,
+    "optim": schema.OptimConfig,
+    "trainer": schema.TrainerConfig,
+    "logger": schema.LoggerConfig,
+    "dynamics": schema.DynamicsConfig,
+}
 
 
 def options(group: str) -> list[str]:

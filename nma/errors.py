@@ -7,6 +7,7 @@
 
 This module imports nothing, so every layer can raise these without importing another's machinery.
 """
+
 from __future__ import annotations
 
 
@@ -28,8 +29,8 @@ class TrainingError(RuntimeError):
 
 
 class Stopped(RuntimeError):
-    """A run stopped on a signal (SIGTERM before a scheduler's time limit, Ctrl-C) after checkpointing:
-    exit status 128 + the signal's number."""
+    """A run stopped on a signal (SIGTERM before a scheduler's time limit, Ctrl-C) after
+    checkpointing: exit status 128 + the signal's number."""
 
     def __init__(self, message: str, signum: int):
         super().__init__(message)

@@ -1,6 +1,7 @@
 """The machinery of settings, shared by the config schema (nma.schema) and the tasks' own schemas: a
-field's allowed range or choices beside its default (`bounded`, `choice`), and `Schema`, the base that
-checks every field on construction."""
+field's allowed range or choices beside its default (`bounded`, `choice`), and `Schema`, the base
+that checks every field on construction."""
+
 from __future__ import annotations
 
 import math
@@ -34,20 +35,27 @@ def option(default: Any, doc: str):
     return field(default=default, metadata={"doc": doc})
 
 
-def like(options_cls: type, name: str, default: Any = DC_MISSING, doc: str = "", choices: tuple = ()):
+def like(
+    options_cls: type, name: str, default: Any = DC_MISSING, doc: str = "", choices: tuple = ()
+):
     """A config field that redeclares the field `name` of the plain options class `options_cls` with
-    another default (an auto value, say): its range and doc are the options class's, `doc` added (and
-    `choices`, where given, the names it takes)."""
+    another default (an auto value, say): its range and doc are the options class's, `doc` added
+    (and `choices`, where given, the names it takes)."""
     f = next(f for f in fields(options_cls) if f.name == name)
-    meta = {**f.metadata, "doc": "; ".join(d for d in (f.metadata.get("doc", ""), doc) if d),
-            **({"choices": tuple(choices)} if choices else {})}
+    meta = {
+        **f.metadata,
+        "doc": "; ".join(d for d in (f.metadata.get("doc", ""), doc) if d),
+        **({"choices": tuple(choices)} if choices else {}),
+    }
     return field(default=f.default if default is DC_MISSING else default, metadata=meta)
 
 
 def with_options(options_cls: type):
-    """A class decorator for a config schema (under @dataclass, so applied first): every field of the plain options class
-    `options_cls`, with its type, default, range and doc, declared once there, and then the schema's
-    own fields; a field the schema declares itself (with `like`, say) keeps the schema's declaration."""
+    """A class decorator for a config schema (under @dataclass, so applied first): every field of
+    the plain options class `options_cls`, with its type, default, range and doc, declared once
+    there, and then the schema's own fields; a field the schema declares itself (with `like`, say)
+    keeps the schema's declaration."""
+
     def add(cls):
         own = dict(cls.__dict__.get("__annotations__", {}))
         hints = get_type_hints(options_cls)
@@ -60,6 +68,7 @@ def with_options(options_cls: type):
             setattr(cls, f.name, field(default=f.default, metadata=f.metadata))
         cls.__annotations__ = {**merged, **own}
         return cls
+
     return add
 
 
@@ -77,16 +86,26 @@ def check_range(path: str, value: float, spec: str) -> None:
 
 
 def _kind(tp) -> str:
-    return {int: "an integer", float: "a finite number", bool: "true or false", str: "a string"}.get(tp, str(tp))
+    return {
+        int: "an integer",
+        float: "a finite number",
+        bool: "true or false",
+        str: "a string",
+    }.get(tp, str(tp))
 
 
 def _check_type(path: str, value: Any, tp) -> None:
     origin = get_origin(tp)
     if origin is None and tp in (int, float, bool, str):
-        ok = (isinstance(value, bool) if tp is bool else
-              isinstance(value, int) and not isinstance(value, bool) if tp is int else
-              isinstance(value, (int, float)) and not isinstance(value, bool) if tp is float else
-              isinstance(value, str))
+        ok = (
+            isinstance(value, bool)
+            if tp is bool
+            else isinstance(value, int) and not isinstance(value, bool)
+            if tp is int
+            else isinstance(value, (int, float)) and not isinstance(value, bool)
+            if tp is float
+            else isinstance(value, str)
+        )
         if not ok:
             raise ConfigError(f"{path} must be {_kind(tp)}, got {value!r}")
     elif origin in (list, List):
@@ -116,7 +135,9 @@ def _points(path: str, value: Any, kind: type) -> None:
     """A list of pairs of numbers (kind int: grid node indices)."""
     for i, p in enumerate(value):
         if not isinstance(p, (list, tuple)) or len(p) != 2:
-            raise ConfigError(f"{path}[{i}] must be a pair {'[i, j]' if kind is int else '[x, y]'}, got {p!r}")
+            raise ConfigError(
+                f"{path}[{i}] must be a pair {'[i, j]' if kind is int else '[x, y]'}, got {p!r}"
+            )
         for v in p:
             _check_type(f"{path}[{i}]", v, kind)
             if not math.isfinite(v):
@@ -145,6 +166,7 @@ def _every_number(value):
 
 class Schema:
     """Base of every config dataclass: type and range checks of each field, then `check()`."""
+
     prefix: ClassVar[str] = ""
 
     def __post_init__(self):
@@ -156,7 +178,11 @@ class Schema:
                 continue  # checked on its own construction
             if isinstance(value, (list, tuple)) and value and isinstance(value[0], Schema):
                 continue
-            if hints.get(f.name) is float and isinstance(value, int) and not isinstance(value, bool):
+            if (
+                hints.get(f.name) is float
+                and isinstance(value, int)
+                and not isinstance(value, bool)
+            ):
                 value = float(value)
                 setattr(self, f.name, value)
             _check_type(path, value, hints.get(f.name, Any))
@@ -171,7 +197,9 @@ class Schema:
             if any(isinstance(x, float) and not math.isfinite(x) for x in _every_number(value)):
                 raise ConfigError(f"{path} must hold finite numbers only, got {value!r}")
             if "choices" in f.metadata and value not in f.metadata["choices"]:
-                raise ConfigError(f"{path} must be one of {list(f.metadata['choices'])}, got {value!r}")
+                raise ConfigError(
+                    f"{path} must be one of {list(f.metadata['choices'])}, got {value!r}"
+                )
         self.check()
 
     def check(self) -> None:

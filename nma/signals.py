@@ -1,5 +1,7 @@
-"""A training run's signals: SIGTERM (what SLURM sends before a time limit) and Ctrl-C stop it after its
-current step, with a checkpoint, and a step stuck in compiled code is not waited for past a grace time."""
+"""A training run's signals: SIGTERM (what SLURM sends before a time limit) and Ctrl-C stop it after
+its current step, with a checkpoint, and a step stuck in compiled code is not waited for past a
+grace time."""
+
 from __future__ import annotations
 
 import os
@@ -33,7 +35,8 @@ def stop_on_signals(grace: float = 60.0):
     for: the run stops there, keeping what it had checkpointed (a scheduler's preemption is never
     ignored).  Yields a callable: the signal asked for, or 0."""
     asked: list[int] = []
-    if threading.current_thread() is not threading.main_thread():  # handlers live in the main thread
+    # handlers live in the main thread
+    if threading.current_thread() is not threading.main_thread():
         yield lambda: 0
         return
 
@@ -41,18 +44,23 @@ def stop_on_signals(grace: float = 60.0):
         if asked and signum == signal.SIGINT:
             _end_now(128 + signum, AGAIN)
         asked.append(signum)
-        sys.stderr.write(f"{signal.Signals(signum).name}: stopping after the current step, with a checkpoint"
-                         + (" (Ctrl-C again to interrupt at once)" if signum == signal.SIGINT else "") + "\n")
+        sys.stderr.write(
+            f"{signal.Signals(signum).name}: stopping after the current step, with a checkpoint"
+            + (" (Ctrl-C again to interrupt at once)" if signum == signal.SIGINT else "")
+            + "\n"
+        )
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
-    # Python runs `handler` only when the main thread is back in the interpreter, which a step stuck in
-    # compiled code never is; the signal's byte on the wakeup fd reaches the watchdog thread at once.
+    # Python runs `handler` only when the main thread is back in the interpreter, which a step stuck
+    # in compiled code never is; the signal's byte on the wakeup fd reaches the watchdog thread at
+    # once.
     receive, send = socket.socketpair()
     send.setblocking(False)
     old_fd = signal.set_wakeup_fd(send.fileno(), warn_on_full_buffer=False)
     left = threading.Event()  # the run has left stop_on_signals: its own exit handling takes over
-    threading.Thread(target=_stop_within, args=(receive, grace, left), daemon=True,
-                     name="nma-stop-within").start()
+    threading.Thread(
+        target=_stop_within, args=(receive, grace, left), daemon=True, name="nma-stop-within"
+    ).start()
     try:
         yield lambda: asked[0] if asked else 0
     finally:
@@ -76,9 +84,12 @@ def _stop_within(receive: socket.socket, grace: float, left: threading.Event) ->
             timeout = None if first is None else max(0.0, first[1] + grace - time.monotonic())
             if not select.select([receive], [], [], timeout)[0]:
                 name = signal.Signals(first[0]).name
-                _end_now(128 + first[0], f"{name}: the current step did not finish within "
-                                         f"trainer.stop_grace = {grace:g} s; stopping now: the run "
-                                         "resumes from its last checkpoint")
+                _end_now(
+                    128 + first[0],
+                    f"{name}: the current step did not finish within "
+                    f"trainer.stop_grace = {grace:g} s; stopping now: the run "
+                    "resumes from its last checkpoint",
+                )
             data = receive.recv(64)
             if not data or left.is_set():
                 return  # the run left stop_on_signals

@@ -4,18 +4,19 @@
 
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
-converged, valid, validity, seconds, natural_frequencies; with dynamics, `dynamics`: nma.dynamics.report);
+converged, valid, validity, seconds, natural_frequencies: about the equilibrium, or with dynamics
+at rest, where the run starts; with dynamics, `dynamics`: nma.dynamics.report);
 a value that is not finite is written as null, so the line is
-always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py: det F
-over the whole material, no boundary curve through itself or another); `validity` has the details.
-With dynamics, `converged` and `valid` are the run in time's too: every time step converged, and
-every state of the trajectory (each checked) is a physical object.
-Exit codes as in nma/cli.py: 2 for bad input (before any work), 1 if the solve cannot reach full
+always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py:
+det F over the whole material, no boundary curve through itself or another); `validity` has the
+details. With dynamics, `converged` and `valid` are the run in time's too: every time step
+converged, and every state of the trajectory (each checked) is a physical object.
+Exit codes as in nma.cli: 2 for bad input (before any work), 1 if the solve cannot reach full
 load or a time step fails (one line on stderr says when and why; the JSON line says how far it got).
 """
+
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import sys
@@ -29,21 +30,20 @@ from . import cli
 from .cli import json_safe
 from .config import CONF_DIR
 from .errors import ConfigError, SolverError
+from .resolve import material_params, model_record, resolve
 from .schema import SimulateConfig, build, register
-from .schema.physics import model_record, resolve_auto
 
 log = logging.getLogger("nma.simulate")
 register()
 
 
 def validate(cfg: DictConfig) -> SimulateConfig:
-    from .fidelity import resolve
     from .registry import LINEAR_SOLVERS
     from .solver import linear  # noqa: F401  (register backends)
 
     settings = build(SimulateConfig, cfg)
     LINEAR_SOLVERS.get(settings.solver.linear)
-    return resolve_auto(dataclasses.replace(settings, fidelity=resolve(settings.fidelity, settings.scene)))
+    return resolve(settings)
 
 
 def run(s: SimulateConfig, out_dir: Path) -> dict:
@@ -61,24 +61,38 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .viz.plot import save_reference_and_deformed
 
     spec = scene_from_config(s.scene)
-    mat = s.material.params()
+    mat = material_params(s.material)
     units = Units.of(s.part, s.material)
     t0 = time.perf_counter()
     sim = Simulator.from_settings(s)
     build_seconds = time.perf_counter() - t0
-    d = sim.check_actuation(jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation))
-    result = {"scene": spec.name, "dofs": sim.disc.boundary.n_dofs, "contact": s.contact.enabled, "actuation": np.asarray(d).tolist(),
-              "material": s.material.record(),
-              "model": model_record(s), "units": units.record()}
+    d = sim.check_actuation(
+        jnp.zeros(sim.n_actuations) if s.actuation is None else jnp.asarray(s.actuation)
+    )
+    result = {
+        "scene": spec.name,
+        "dofs": sim.disc.boundary.n_dofs,
+        "contact": s.contact.enabled,
+        "actuation": np.asarray(d).tolist(),
+        "material": s.material.record(),
+        "model": model_record(s),
+        "units": units.record(),
+    }
     params = sim.init_params()
     t0 = time.perf_counter()
     eq = sim.solve(params, d, mat, throw=False)
     seconds = time.perf_counter() - t0
     info = eq.info
     if not eq.converged:
-        return {**result, "converged": False, "error": str(sim.failure(eq, d, mat)), "load_reached": float(info.load),
-                "load_steps": int(info.load_steps), "newton_iterations": int(info.iterations),
-                "residual": float(info.residual)}
+        return {
+            **result,
+            "converged": False,
+            "error": str(sim.failure(eq, d, mat)),
+            "load_reached": float(info.load),
+            "load_steps": int(info.load_steps),
+            "newton_iterations": int(info.iterations),
+            "residual": float(info.residual),
+        }
     X = np.asarray(sim.reference_points(params))
     energy = sim.energy(X, eq.u, mat)
     tracked = {k: np.asarray(v).tolist() for k, v in sim.tracked(X, eq.u).items()}
@@ -86,23 +100,49 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     state = checker.check(eq.u)
     if not state.valid:
         log.warning("the equilibrium is not a physical object: %s", "; ".join(state.problems()))
-    h5, xdmf = write_fields(out_dir / "fields.h5", sim.disc, X, eq.u, s.output.samples,
-                            attrs={"actuation": np.asarray(d), "energy": energy})
+    h5, xdmf = write_fields(
+        out_dir / "fields.h5",
+        sim.disc,
+        X,
+        eq.u,
+        s.output.samples,
+        attrs={"actuation": np.asarray(d), "energy": energy},
+    )
     forces = np.asarray(sim.actuation_forces(X, eq.u, mat)).tolist()
-    result.update({
-        "tracked": tracked, **({"tracked_mm": {k: units.convert(v, "length") for k, v in tracked.items()}}
-                               if units.mm_per_unit is not None else {}),
-        "actuation_forces": forces, **units.physical("actuation_forces", forces, "force"), "energy": energy, "load_steps": int(info.load_steps),
-        "newton_iterations": int(info.iterations), "converged": True, "valid": state.valid,
-        "validity": {**state.record(), "resolution": checker.resolution},
-        "residual": float(info.residual), "tolerance": float(info.tolerance),
-        "seconds": seconds, "build_seconds": build_seconds, "fields": str(h5), "xdmf": str(xdmf)})
-    from .dynamics import report  # the natural frequencies about this equilibrium; with dynamics, the run in time
-    result.update(report.frequencies(sim, X, mat, s.material.density, d, eq.u))
+    result.update(
+        {
+            "tracked": tracked,
+            **(
+                {"tracked_mm": {k: units.convert(v, "length") for k, v in tracked.items()}}
+                if units.mm_per_unit is not None
+                else {}
+            ),
+            "actuation_forces": forces,
+            **units.physical("actuation_forces", forces, "force"),
+            "energy": energy,
+            "load_steps": int(info.load_steps),
+            "newton_iterations": int(info.iterations),
+            "converged": True,
+            "valid": state.valid,
+            "validity": {**state.record(), "resolution": checker.resolution},
+            "residual": float(info.residual),
+            "tolerance": float(info.tolerance),
+            "seconds": seconds,
+            "build_seconds": build_seconds,
+            "fields": str(h5),
+            "xdmf": str(xdmf),
+        }
+    )
+    from .dynamics import report
+
+    # one modal solve: about this equilibrium; in time at rest, where the run starts (its time step)
+    about = () if s.dynamics.enabled else (d, eq.u)
+    modes = report.frequencies(sim, X, mat, s.material.density, *about)
+    result.update(modes)
     if s.dynamics.enabled:
         where = f"scene {spec.name}, actuation {np.asarray(d).tolist()}"
         try:
-            result.update(report.over_time(s, sim, X, d, mat, eq.u, out_dir))
+            result.update(report.over_time(s, sim, X, d, mat, eq.u, out_dir, modes))
         except SolverError as err:  # nothing moved: the static result stands, the run in time not
             result.update(converged=False, valid=False, error=f"{where}: {err}")
         else:
@@ -112,8 +152,13 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
             if not dyn["completed"]:
                 result.update(converged=False, error=f"{where}: {dyn['why']}")
     if s.output.figure:
-        png = save_reference_and_deformed(out_dir / "deformation.png", sim.disc, X, eq.u,
-                                          f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}")
+        png = save_reference_and_deformed(
+            out_dir / "deformation.png",
+            sim.disc,
+            X,
+            eq.u,
+            f"{spec.name}, d = {np.round(np.asarray(d), 3).tolist()}",
+        )
         result["figure"] = str(png)
     return result
 
@@ -134,9 +179,13 @@ def main() -> None:
     def check(cfg, hydra_cfg, multirun):
         validate(cfg)
         out = cli.job_dir(hydra_cfg, multirun)
-        if out.is_dir() and any(p.name != cli.RUN_LOCK for p in out.iterdir()):  # a run's, or an earlier solve's
-            raise ConfigError(f"hydra.run.dir={out} holds files already: nma.simulate writes a directory of its own "
-                              f"(without hydra.run.dir each solve gets a new one)")
+        # a run's, or an earlier solve's
+        if out.is_dir() and any(p.name != cli.RUN_LOCK for p in out.iterdir()):
+            raise ConfigError(
+                f"hydra.run.dir={out} holds files already: nma.simulate writes a directory of its "
+                "own "
+                f"(without hydra.run.dir each solve gets a new one)"
+            )
 
     cli.preflight("simulate", check, sys.argv[1:])
     hydra_main()

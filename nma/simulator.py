@@ -1,15 +1,17 @@
 """The simulator facade: a scene, built once, with its solver; what tasks and commands call.
 
-    sim = Simulator.from_config(scene_cfg, fidelity=..., solver=...)
-    X = sim.reference_points(params)          # differentiable design map
-    u, info = sim.equilibrium(X, d, mat)      # an Equilibrium, differentiable (jit/grad friendly)
-    eq = sim.solve(params, d, mat)            # eager, on the host: raises SolverError unless converged
-    eq = sim.solve(params, d, mat, throw=False)   # ...or returns it failed: eq.converged, sim.failure(eq, d, mat)
+```python
+sim = Simulator.from_config(scene_cfg, fidelity=..., solver=...)
+X = sim.reference_points(params)        # differentiable design map
+u, info = sim.equilibrium(X, d, mat)    # an Equilibrium, differentiable (jit/grad friendly)
+eq = sim.solve(params, d, mat)          # eager, on the host: raises SolverError unless converged
+eq = sim.solve(params, d, mat, throw=False)  # or returns it failed: sim.failure(eq, d, mat)
+```
 """
+
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from functools import partial
 from typing import Any, Mapping
 
@@ -19,11 +21,11 @@ import numpy as np
 
 from . import checks
 from .errors import ConfigError, SolverError
-from .geometry.discretise import Discretisation, discretise
-from .schema import ContactConfig, Fidelity, MaterialConfig, SolverConfig, build, scene_config, scene_from_config
-from .schema.physics import resolve_auto
+from .discretise import Discretisation, discretise
 from .mechanics.energy import quadrature, strain_energy
+from .resolve import contact_options, library_settings, material_of, material_params, newton_options
 from .runtime import available_cores
+from .schema import scene_from_config
 from .solver.equations import Equations, tangents_at
 from .solver.implicit import make_equilibrium
 from .solver.linear import make_backend
@@ -31,42 +33,20 @@ from .solver.status import Equilibrium
 from .solver.options import WARM_START_NEEDS_HOST, NewtonOptions
 
 
-def _settings(argument: str, group: str, value):
-    """One of from_config's arguments as a mapping: a preset's name (conf/<group>/<name>.yaml), a mapping,
-    a checked schema instance or None (the defaults); anything else is refused, naming the argument."""
-    if isinstance(value, str):
-        from . import config
-
-        return config.load(group, value)
-    if value is None or isinstance(value, Mapping) or dataclasses.is_dataclass(value):
-        return value
-    raise TypeError(f"Simulator.from_config: {argument} must be a mapping, a {group} preset's name "
-                    f"(conf/{group}/) or None, got {type(value).__name__} {value!r:.80}")
-
-
-@dataclasses.dataclass
-class _Settings:
-    """A command's settings as from_config builds them (what resolve_auto and from_settings read)."""
-    scene: Any
-    fidelity: Any
-    contact: Any
-    solver: Any
-    material: Any
-
-
 class Simulator:
     """A scene discretised once, with its linear solver and Newton's options: what every task and
     command solves with.
 
-    Build one with `from_config` (plain mappings or preset names, as a script would) or `from_settings`
-    (a command's checked settings); the constructor takes the discretisation and Newton's options as
-    Python objects.
+    Build one with `from_config` (plain mappings or preset names, as a script would) or
+    `from_settings` (a command's checked settings); the constructor takes the discretisation and
+    Newton's options as Python objects.
 
     Args:
-        disc: The discretisation (`nma.geometry.discretise.discretise`): patches, merged control points,
+        disc: The discretisation (`nma.discretise.discretise`): patches, merged control points,
             actuated groups, supports and quadrature.
         linear: A linear backend registered in `nma.solver.linear`: `auto` (PARDISO where Intel MKL
-            installs, else SuperLU), `pardiso`, `superlu` or `dense` (traced: runs under `jit`/`vmap`).
+            installs, else SuperLU), `pardiso`, `superlu` or `dense` (traced: runs under
+            `jit`/`vmap`).
         options: Newton's options (`nma.solver.options.NewtonOptions`).
         workers: Threads solving a batch's samples at once (host backends); 0: one per core.
 
@@ -88,50 +68,82 @@ class Simulator:
         True
     """
 
-    def __init__(self, disc: Discretisation, linear: str = "auto", options: NewtonOptions = NewtonOptions(),
-                 workers: int = 0):
+    def __init__(
+        self,
+        disc: Discretisation,
+        linear: str = "auto",
+        options: NewtonOptions = NewtonOptions(),
+        workers: int = 0,
+    ):
         self.disc = disc
         self.options = options
-        self.material_params = None  # the material's parameter array, where a config named it (from_config)
+        # the material's parameter array, where a config named it (from_config)
+        self.material_params = None
         self.backend = make_backend(linear, disc)
         if options.escape_saddles and not getattr(self.backend, "reports_inertia", False):
-            raise ConfigError(f"solver.escape_saddles needs a linear solver that reports the inertia of its "
-                              f"factorisation (pardiso); solver.linear={self.backend.name} does not")
+            raise ConfigError(
+                f"solver.escape_saddles needs a linear solver that reports the inertia of its "
+                f"factorisation (pardiso); solver.linear={self.backend.name} does not"
+            )
         if options.warm_start and self.backend.traceable:
             raise ConfigError(f"solver.warm_start {WARM_START_NEEDS_HOST}")
         self.equations = Equations(disc)
         # threads solving a batch's samples at once (a traced backend batches under vmap instead)
         self.workers = 1 if self.backend.traceable else workers or available_cores()
-        # warm_starts: the equilibria kept as starting points (solver.warm_start), None where none are
-        self._equilibrium, self.warm_starts = make_equilibrium(self.equations, self.backend, options, self.workers)
-        self._tangents = jax.jit(partial(tangents_at, self.equations))  # the Hessian's element blocks at a state
-        self._solve = jax.jit(lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat))
-        self._energy = jax.jit(lambda X, u, mat: strain_energy(disc.solid, quadrature(disc.solid, X), u, mat))
+        # warm_starts: the equilibria kept as starting points (solver.warm_start), None where none
+        # are
+        self._equilibrium, self.warm_starts = make_equilibrium(
+            self.equations, self.backend, options, self.workers
+        )
+        # the Hessian's element blocks at a state
+        self._tangents = jax.jit(partial(tangents_at, self.equations))
+        self._solve = jax.jit(
+            lambda params, d, mat: self.equilibrium(self.reference_points(params), d, mat)
+        )
+        self._energy = jax.jit(
+            lambda X, u, mat: strain_energy(disc.solid, quadrature(disc.solid, X), u, mat)
+        )
 
     @classmethod
     def from_settings(cls, s, workers: int | None = None) -> "Simulator":
         """A simulator from a command's checked settings: every command builds its simulator here.
 
         Args:
-            s: Any object with `scene`, `fidelity`, `contact`, `material` and `solver` as the commands
-                check and resolve them (`TrainConfig`, `SimulateConfig`): `fidelity=auto` and the auto
-                choices already made.
+            s: Any object with `scene`, `fidelity`, `contact`, `material` and `solver` as the
+                commands check and resolve them (`TrainConfig`, `SimulateConfig`): `fidelity=auto`
+                and the auto choices already made.
             workers: Threads in place of `solver.workers`; None: `solver.workers`.
 
         Returns:
             The simulator of those settings.
         """
-        disc = discretise(scene_from_config(s.scene), s.fidelity, s.contact.settings(), s.material.model())
-        sim = cls(disc, s.solver.linear, s.solver.newton(), s.solver.workers if workers is None else workers)
-        sim.material_params = s.material.params()
+        disc = discretise(
+            scene_from_config(s.scene),
+            s.fidelity,
+            contact_options(s.contact),
+            material_of(s.material),
+        )
+        sim = cls(
+            disc,
+            s.solver.linear,
+            newton_options(s.solver),
+            s.solver.workers if workers is None else workers,
+        )
+        sim.material_params = material_params(s.material)
         return sim
 
     @classmethod
-    def from_config(cls, scene: Mapping[str, Any], fidelity: Mapping[str, Any] | None = None,
-                    solver: Mapping[str, Any] | None = None, contact: Mapping[str, Any] | None = None,
-                    formulation: str = "auto", material: Mapping[str, Any] | str | None = None) -> "Simulator":
-        """A simulator from plain mappings, without Hydra: each checked as the commands check it, the
-        fidelity and contact resolved for the scene.
+    def from_config(
+        cls,
+        scene: Mapping[str, Any],
+        fidelity: Mapping[str, Any] | None = None,
+        solver: Mapping[str, Any] | None = None,
+        contact: Mapping[str, Any] | None = None,
+        formulation: str = "auto",
+        material: Mapping[str, Any] | str | None = None,
+    ) -> "Simulator":
+        """A simulator from plain mappings, without Hydra: each checked as the commands check it,
+        and what is left to auto decided for the scene and the material (`nma.resolve`).
 
         Each settings argument is a mapping of that config group's fields, a preset's name
         (`conf/<group>/<name>.yaml`), a checked schema instance, or None for the defaults.
@@ -140,41 +152,31 @@ class Simulator:
             scene: The scene (`nma.schema.scene.SceneConfig`'s fields, or `"translation"` etc.).
             fidelity: The discretisation; None: the scene's own (`fidelity=scene`).
             solver: Newton's and the linear solver's settings; None: the defaults.
-            contact: Contact between pore walls; None: none. `{"enabled": None}` follows the scene, as
-                the commands' `contact=auto` does.
-            formulation: `displacement`, `mixed` (locking-free as nu -> 0.5) or `auto`: by the material's nu.
-            material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's name,
-                `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not auto,
-                replaces `formulation`.  `sim.material_params` is its parameter array.
+            contact: Contact between pore walls; None: none. `{"enabled": None}` (contact=auto)
+                follows the scene.
+            formulation: `displacement`, `mixed` (locking-free as nu -> 0.5) or `auto`: by the
+                material's nu.
+            material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's
+                name, `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not
+                auto, replaces `formulation`.  `sim.material_params` is its parameter array.
 
         Returns:
             The simulator.
 
         Raises:
-            ConfigError: A setting out of its range, or a scene that cannot be a physical set-up, with
-                the field named.
+            ConfigError: A setting out of its range, or a scene that cannot be a physical set-up,
+                with the field named.
 
         Examples:
             >>> from nma import config
-            >>> sim = Simulator.from_config({**config.load("scene", "translation"), "radii_init": 0.3},
-            ...                             fidelity={"quad_points": 3}, solver="superlu")
+            >>> scene = {**config.load("scene", "translation"), "radii_init": 0.3}
+            >>> sim = Simulator.from_config(scene, fidelity={"quad_points": 3}, solver="superlu")
             >>> sim.init_params()["radii"].shape
             (24, 16)
         """
-        from .fidelity import resolve
-
-        scene, fidelity, solver, contact = (_settings(name, group, value) for name, group, value in (
-            ("scene", "scene", scene), ("fidelity", "fidelity", fidelity), ("solver", "solver", solver),
-            ("contact", "contact", contact)))
-        scene, solver, contact = scene_config(scene), build(SolverConfig, solver), build(ContactConfig, contact)
-        material = _settings("material", "material", material) or {}
-        material = build(MaterialConfig, dataclasses.asdict(material) if dataclasses.is_dataclass(material) else material)
-        if material.formulation == "auto":
-            material = dataclasses.replace(material, formulation=formulation)
-        # what is left to auto (formulation, corrector, iterations, inversion barrier) is chosen by the material's
-        # nu as the commands choose it
-        return cls.from_settings(resolve_auto(_Settings(scene, resolve(build(Fidelity, fidelity), scene),
-                                                        contact.resolved(scene), solver, material)))
+        return cls.from_settings(
+            library_settings(scene, fidelity, solver, contact, formulation, material)
+        )
 
     @property
     def n_actuations(self) -> int:
@@ -182,8 +184,9 @@ class Simulator:
         return self.disc.boundary.n_actuations
 
     def init_params(self):
-        """The initial design: a dict of arrays holding what the scene models (`radii` (n_porous_cells, 16),
-        and `corners`, `pore_radii`, `colours` where the scene has them), at the scene's initial values."""
+        """The initial design: a dict of arrays holding what the scene models (`radii`
+        (n_porous_cells, 16), and `corners`, `pore_radii`, `colours` where the scene has them), at
+        the scene's initial values."""
         return self.disc.init_params()
 
     def reference_points(self, params) -> jnp.ndarray:
@@ -198,106 +201,85 @@ class Simulator:
         return self.disc.reference_points(self.check_params(params))
 
     def check_params(self, params) -> dict:
-        """The design parameters as init_params() has them, checked, naming the entry: the same keys and
-        shapes, real numbers, and a concrete value finite and inside the design's box (design.bounds(),
-        where training projects them: radii in scene.radii_bounds, corner moves in scene.corner_box)."""
-        expected = self.init_params()
-        if not isinstance(params, Mapping):
-            got = f" of shape {np.shape(params)}" if hasattr(params, "shape") else ""
-            raise TypeError(f"params must be a mapping of the design's parameters {sorted(expected)} (as "
-                            f"sim.init_params() gives them), got {type(params).__name__}{got}")
-        if set(params) != set(expected):
-            raise ValueError(f"params must have the keys {sorted(expected)} of scene {self.disc.spec.name}'s "
-                             f"design, got {sorted(params)}")
-        bounds = self.disc.design.bounds()
-        for key, want in expected.items():
-            value = params[key]
-            if jnp.shape(value) != want.shape:
-                raise ValueError(f"params[{key!r}] must have shape {want.shape}, got {jnp.shape(value)}")
-            if not jnp.issubdtype(jnp.result_type(value), jnp.floating) and \
-                    not jnp.issubdtype(jnp.result_type(value), jnp.integer):
-                raise TypeError(f"params[{key!r}] must hold real numbers, got dtype {jnp.result_type(value)}")
-            if isinstance(value, jax.core.Tracer):
-                continue
-            value, (lo, hi) = np.asarray(value, dtype=np.float64), bounds[key]
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f"params[{key!r}] must be finite")
-            if value.min(initial=lo) < lo or value.max(initial=hi) > hi:
-                raise ValueError(f"params[{key!r}] must lie in [{lo:g}, {hi:g}] (the design's box), got values "
-                                 f"in [{value.min():g}, {value.max():g}]")
-        return params
+        """The design parameters as init_params() has them, checked, naming the entry: the same keys
+        and shapes, real numbers, and a concrete value finite and inside the design's box
+        (design.bounds(), where training projects them: radii in scene.radii_bounds, corner moves in
+        scene.corner_box)."""
+        return checks.design(
+            params, self.init_params(), self.disc.design.bounds(), self.disc.spec.name
+        )
 
     def check_actuation(self, d) -> jnp.ndarray:
-        try:
-            d = jnp.atleast_1d(jnp.asarray(d, dtype=jnp.float64))
-        except (TypeError, ValueError):
-            raise ConfigError(f"actuation must be {self.n_actuations} numbers, got {type(d).__name__} {d!r:.80}") from None
-        if d.shape != (self.n_actuations,):
-            raise ConfigError(f"actuation must have {self.n_actuations} entries for scene "
-                             f"{self.disc.spec.name}, got shape {tuple(d.shape)}")
-        if not np.all(np.isfinite(np.asarray(d))):
-            raise ConfigError(f"actuation must be finite, got {np.asarray(d).tolist()}")
-        return d
+        """Actuations as a float64 array of n_actuations finite entries; ConfigError otherwise."""
+        return checks.actuation(d, self.n_actuations, self.disc.spec.name)
 
     def equilibrium(self, X, d, mat) -> Equilibrium:
         """The equilibrium under actuation d (n_actuations,) of the design with reference points X
-        (n_points, 2) and material mat: differentiable in all three; under jit a failed solve says so in
-        its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap: one
-        sample's), and a concrete argument's finiteness and range (under jit a non-finite input ends the
-        solve at once, info.status NONFINITE_INPUT); other real precisions are taken as float64.
-        Its derivative is implicit: the backward pass solves one adjoint system with the tangent at the
-        solution.  It works under `jax.jit`, `jax.grad` and `jax.vmap` (see `equilibrium_batch`).
+        (n_points, 2) and material mat: differentiable in all three; under jit a failed solve says
+        so in its info.status.  Shapes and dtypes are checked here, naming the argument (under vmap:
+        one sample's), and a concrete argument's finiteness and range (under jit a non-finite input
+        ends the solve at once, info.status NONFINITE_INPUT); other real precisions are taken as
+        float64. Its derivative is implicit: the backward pass solves one adjoint system with the
+        tangent at the solution.  It works under `jax.jit`, `jax.grad` and `jax.vmap` (see
+        `equilibrium_batch`).
 
         Args:
             X: Reference control points (n_points, 2), from `reference_points`.
             d: Actuations (n_actuations,): each actuated group moves by d[actuation] * direction.
-            mat: The material's parameters: Neo-Hookean's [E, nu] (`nma.mechanics.material.material(E, nu)`),
-                another law's its parameters then nu (`MaterialConfig.params()`, `sim.material_params`).
+            mat: The material's parameters: Neo-Hookean's [E, nu]
+                (`nma.mechanics.material.material(E, nu)`), another law's its parameters then nu
+                (`nma.resolve.material_params`, `sim.material_params`).
 
         Returns:
-            An `Equilibrium` (`u, info = ...`): the displacement of every control point (n_points, 2)
-            and Newton's statistics; `info.status` is a `Status` (1: converged).  A failed solve's `u`
-            is its last converged state, at load factor `info.load`.
+            An `Equilibrium` (`u, info = ...`): the displacement of every control point (n_points,
+            2) and Newton's statistics; `info.status` is a `Status` (1: converged).  A failed
+            solve's `u` is its last converged state, at load factor `info.load`.
 
         Raises:
-            ValueError: A concrete argument of the wrong shape, not finite, or a material out of range.
+            ValueError: A concrete argument of the wrong shape, not finite, or a material out of
+                range.
             TypeError: An argument that is not an array of real numbers.
         """
-        return self._equilibrium(*(self._checked(name, v, shape) for name, v, shape in (
-            ("X", X, (self.disc.mesh.n_points, 2)), ("d", d, (self.n_actuations,)), ("mat", mat, (self.disc.material.n_params,)))))
-
-    def _checked(self, name: str, value, shape: tuple):
-        value = checks.array("equilibrium", name, value, shape, float64=True)
-        if name == "mat" and not isinstance(value, jax.core.Tracer):
-            self.disc.material.check(np.asarray(value, dtype=np.float64))
-        return value.astype(jnp.float64)
+        return self._equilibrium(
+            checks.solve_input("X", X, (self.disc.mesh.n_points, 2)),
+            checks.solve_input("d", d, (self.n_actuations,)),
+            checks.material_input(mat, self.disc.material),
+        )
 
     def equilibrium_batch(self, X, ds, mat):
-        """Solves for a batch of actuations (n, n_act) on one geometry. Host backends hand the batch to
-        their thread pool (each sample's Newton stops when it converges); a pure-JAX backend runs the
-        batch in lockstep (parallel on a GPU)."""
+        """Solves for a batch of actuations (n, n_act) on one geometry. Host backends hand the batch
+        to their thread pool (each sample's Newton stops when it converges); a pure-JAX backend runs
+        the batch in lockstep (parallel on a GPU)."""
         if jnp.ndim(ds) != 2 or jnp.shape(ds)[1] != self.n_actuations:
-            raise ValueError(f"equilibrium_batch: ds must have shape (n, {self.n_actuations}), a row of actuations "
-                             f"per sample, got {jnp.shape(ds)}")
+            raise ValueError(
+                f"equilibrium_batch: ds must have shape (n, {self.n_actuations}), a row of "
+                "actuations "
+                f"per sample, got {jnp.shape(ds)}"
+            )
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 
-    # -- the solver's state across solves (warm starts): what a trainer asks of it -------------------------
+    # -- the solver's state across solves (warm starts): what a trainer asks of it
+    # -------------------------
     def cold_solves(self):
-        """A context in which every solve starts from rest (warm starts paused; nothing else without them)."""
-        return self.warm_starts.paused() if self.warm_starts is not None else contextlib.nullcontext()
+        """A context in which every solve starts from rest (warm starts paused; nothing else without
+        them)."""
+        return (
+            self.warm_starts.paused() if self.warm_starts is not None else contextlib.nullcontext()
+        )
 
     def warm_starts_stopped(self) -> str:
         """Why warm starts stopped for good (their audits found several equilibria), or ""."""
         return self.warm_starts.stopped if self.warm_starts is not None else ""
 
     def solver_record(self) -> dict | None:
-        """How the solves since the simulator was built started, and whether warm starts held (metrics)."""
+        """How the solves since the simulator was built started, and whether warm starts held
+        (metrics)."""
         warm = self.warm_starts
         return None if warm is None else {**warm.stats, "other_equilibria": warm.other_equilibria}
 
     def checkpoint_state(self) -> tuple[int, int] | None:
-        """What a checkpoint keeps of the solver, the warm starts' audit tallies, and nothing kept after:
-        a run resumed there solves as one not interrupted.  None without warm starts."""
+        """What a checkpoint keeps of the solver, the warm starts' audit tallies, and nothing kept
+        after: a run resumed there solves as one not interrupted.  None without warm starts."""
         if self.warm_starts is None:
             return None
         tallies = self.warm_starts.verdict
@@ -310,8 +292,9 @@ class Simulator:
             self.warm_starts.restore(*tallies)
 
     def solve(self, params, d, mat, throw: bool = True) -> Equilibrium:
-        """Eager forward solve from rest, its result on the host. Unless it converged: raises SolverError
-        (with how far it got), or with throw=False returns it as it ended (`eq.converged`, `self.failure`).
+        """Eager forward solve from rest, its result on the host. Unless it converged: raises
+        SolverError (with how far it got), or with throw=False returns it as it ended
+        (`eq.converged`, `self.failure`).
 
         Args:
             params: The design, as `init_params()` gives it.
@@ -323,8 +306,8 @@ class Simulator:
             The `Equilibrium`, its arrays as numpy arrays.
 
         Raises:
-            SolverError: The solve did not converge (with `throw=True`): the message says the status,
-                the load factor reached and the last residual.
+            SolverError: The solve did not converge (with `throw=True`): the message says the
+                status, the load factor reached and the last residual.
             ConfigError: Actuations of the wrong number or not finite.
 
         Examples:
@@ -334,50 +317,76 @@ class Simulator:
             >>> bool(eq.converged), eq.message
             (True, 'converged')
         """
-        d, params, mat = self.check_actuation(d), self.check_params(params), self._checked("mat", mat, (self.disc.material.n_params,))
+        d, params = self.check_actuation(d), self.check_params(params)
+        mat = checks.material_input(mat, self.disc.material)
         with self.cold_solves():
-            eq = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(self._solve(params, d, mat)))
+            eq = jax.tree_util.tree_map(
+                np.asarray, jax.block_until_ready(self._solve(params, d, mat))
+            )
         if throw and not eq.converged:
             raise self.failure(eq, d, mat)
         return eq
 
     def failure(self, eq: Equilibrium, d, mat) -> SolverError | None:
         """None for a converged solve, else its error: which solve, how far it got and why."""
-        return eq.error(f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ", float(np.asarray(mat)[-1]))
+        return eq.error(
+            f"scene {self.disc.spec.name}, actuation {np.asarray(d).tolist()}: ",
+            float(self.disc.material.nu(np.asarray(mat))),
+        )
 
     def energy(self, X, u, mat) -> float:
         """The strain energy of the state u: the integral of W over the reference domain."""
         return float(self._energy(X, u, mat))
 
     def actuation_forces(self, X, u, mat) -> jnp.ndarray:
-        """The force each actuation pushes with at the state u (n_actuations,): dW/dd, per unit thickness
-        (stress x length; in newtons: nma.units).  Traceable and differentiable."""
-        f = jax.grad(lambda v: strain_energy(self.disc.solid, quadrature(self.disc.solid, X), v, mat))(u)
-        return f.reshape(-1)[self.disc.boundary.dirichlet_dofs] @ jnp.asarray(self.disc.boundary.actuation_matrix)
+        """The force each actuation pushes with at the state u (n_actuations,): dW/dd, per unit
+        thickness (stress x length; in newtons: nma.units).  Traceable and differentiable."""
+        f = jax.grad(
+            lambda v: strain_energy(self.disc.solid, quadrature(self.disc.solid, X), v, mat)
+        )(u)
+        return f.reshape(-1)[self.disc.boundary.dirichlet_dofs] @ jnp.asarray(
+            self.disc.boundary.actuation_matrix
+        )
 
     def negative_eigenvalues(self, X, d, mat, u) -> int | None:
-        """Unstable modes of an equilibrium u: the number of negative eigenvalues of the Hessian K_ff
-        there (0: a stable equilibrium, a local minimum of the energy; > 0: a saddle), or None where
-        the linear backend does not report inertia (only PARDISO's LDL^T does).
-
-        Args:
-            X: Reference control points (n_points, 2).
-            d: The actuations the equilibrium was solved under.
-            mat: The material [E, nu].
-            u: The equilibrium's displacement (n_points, 2).
-
-        Returns:
-            The count of unstable modes, or None without a backend that reports inertia.
-        """
+        """Unstable modes of an equilibrium u (n_points, 2) of reference points X under actuations d
+        and material parameters mat: the number of negative eigenvalues of the Hessian K_ff there
+        (0: a stable equilibrium, a local minimum of the energy; > 0: a saddle), or None where the
+        linear backend does not report inertia (only PARDISO's LDL^T does)."""
         if not getattr(self.backend, "reports_inertia", False):
             return None
         u_free = jnp.asarray(u).reshape(-1)[self.equations.free]
         return self.backend.negative_eigenvalues(self._tangents(X, jnp.asarray(d), mat, u_free))
 
     def tracked(self, X, u) -> dict[str, jnp.ndarray]:
-        """Deformed positions of the scene's tracked material points: its `tracked` names, each mapped to
-        [x, y], of reference control points X and displacements u (n_points, 2); differentiable in both."""
+        """Deformed positions of the scene's tracked material points: its `tracked` names, each
+        mapped to [x, y], of reference control points X and displacements u (n_points, 2);
+        differentiable in both."""
         for name, value in (("X", X), ("u", u)):
             if jnp.shape(value) != (self.disc.mesh.n_points, 2):
-                raise ValueError(f"tracked: {name} must have shape ({self.disc.mesh.n_points}, 2), got {jnp.shape(value)}")
+                raise ValueError(
+                    f"tracked: {name} must have shape ({self.disc.mesh.n_points}, 2), got "
+                    f"{jnp.shape(value)}"
+                )
         return self.disc.tracked_points(X + u)
+
+    def dynamics(self, settings, waveform, density: float = 1.0, **options):
+        """The time stepping of this scene under an actuation waveform: an nma.dynamics Dynamics,
+        whose `function(X, coeffs, mat)` is the trajectory, differentiable.
+
+        Args:
+            settings: A DynamicsConfig (nma.schema.physics; `nma.config.load("dynamics",
+                "newmark")`'s fields) or a mapping of its fields: scheme, time step (null: a 20th
+                of the lowest natural period at rest), steps, damping, step control, adjoint.
+            waveform: f(coeffs, t) -> the actuations at time t (nma.dynamics.waveform.Fourier).
+            density: The material's mass per unit area.
+            **options: Dynamics.from_settings' X, mat (the design and material whose lowest
+                natural frequency sets what the settings leave open), omega_1 (that frequency,
+                where the caller has it), workers, v0.
+        """
+        from .dynamics.trajectory import Dynamics
+        from .schema import DynamicsConfig
+
+        if isinstance(settings, Mapping):  # checked as the config's; a scheme where none is named
+            settings = DynamicsConfig(**{"scheme": "newmark", **settings})
+        return Dynamics.from_settings(self, settings, density, waveform, **options)

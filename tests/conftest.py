@@ -4,8 +4,8 @@ os.environ.setdefault("WANDB_MODE", "disabled")
 
 from nma.runtime import configure_jax  # noqa: E402
 
-# As every command does, before any array exists: float64, and JAX's persistent compilation cache, so
-# that the worker processes and the commands the tests start share what each of them compiled
+# As every command does, before any array exists: float64, and JAX's persistent compilation cache,
+# so that the worker processes and the commands the tests start share what each of them compiled
 configure_jax()
 
 import shutil  # noqa: E402
@@ -22,9 +22,13 @@ from nma import config  # noqa: E402
 from nma.schema import register  # noqa: E402
 from nma.simulator import Simulator  # noqa: E402
 
-# The MPI launcher of the environment the tests run in (the mpich wheel puts it beside the interpreter),
-# whether or not that environment is activated
-MPIEXEC = shutil.which("mpiexec", path=str(Path(sys.executable).parent)) or shutil.which("mpiexec") or "mpiexec"
+# The MPI launcher of the environment the tests run in (the mpich wheel puts it beside the
+# interpreter), whether or not that environment is activated
+MPIEXEC = (
+    shutil.which("mpiexec", path=str(Path(sys.executable).parent))
+    or shutil.which("mpiexec")
+    or "mpiexec"
+)
 
 _SIMS = {}
 
@@ -33,7 +37,9 @@ _SIMS = {}
 def simulator():
     """Simulators shared across tests (building and compiling once per scene and backend)."""
 
-    def get(scene: str, linear: str = "pardiso", solver: dict | None = None, **fidelity) -> Simulator:
+    def get(
+        scene: str, linear: str = "pardiso", solver: dict | None = None, **fidelity
+    ) -> Simulator:
         """`solver`: solver settings besides the backend (the solver group's defaults otherwise)."""
         solver = {"linear": linear, **(solver or {})}
         key = (scene, tuple(sorted(solver.items())), tuple(sorted(fidelity.items())))
@@ -46,21 +52,25 @@ def simulator():
 
 @pytest.fixture(scope="session")
 def barrier_simulator():
-    """The translation scene at 5 x 2 with the inversion barrier (J_hat 0.05), Newton converged to 1e-12
-    (tight enough for central differences of its solution); shared by the barrier and gradient tests."""
-    from nma.geometry.discretise import Resolution, discretise
+    """The translation scene at 5 x 2 with the inversion barrier (J_hat 0.05), Newton converged to
+    1e-12 (tight enough for central differences of its solution); shared by the barrier and gradient
+    tests."""
+    from nma.discretise import Resolution, discretise
     from nma.schema import scene_from_config
     from nma.solver.options import NewtonOptions
 
-    disc = discretise(scene_from_config(config.load("scene", "translation")), Resolution(5, 2, inversion_barrier=0.05))
+    disc = discretise(
+        scene_from_config(config.load("scene", "translation")),
+        Resolution(5, 2, inversion_barrier=0.05),
+    )
     return Simulator(disc, "pardiso", NewtonOptions(rtol=1e-12))
 
 
 def barrier_case():
-    """A random design of the translation scene (radii uniform in [0.1, 0.9]) and a mild actuation whose
-    equilibrium at 5 x 2 is inverted between Gauss points near the pinned corner (25, 0) without the
-    barrier and without Newton's element bound: the eighth draw of this sequence, found by a search over
-    random designs."""
+    """A random design of the translation scene (radii uniform in [0.1, 0.9]) and a mild actuation
+    whose equilibrium at 5 x 2 is inverted between Gauss points near the pinned corner (25, 0)
+    without the barrier and without Newton's element bound: the eighth draw of this sequence, found
+    by a search over random designs."""
     import numpy as np
 
     rng = np.random.default_rng(0)
@@ -69,8 +79,15 @@ def barrier_case():
     return radii, d
 
 
-FAST = ["trainer.steps=2", "trainer.batch_size=2", "trainer.eval_every=2", "trainer.progress=false",
-        "trainer.animation_frames=3", "task.eval_grid=2", "fidelity=fast"]
+FAST = [
+    "trainer.steps=2",
+    "trainer.batch_size=2",
+    "trainer.eval_every=2",
+    "trainer.progress=false",
+    "trainer.animation_frames=3",
+    "task.eval_grid=2",
+    "fidelity=fast",
+]
 
 
 def compose_cfg(*overrides):
@@ -94,8 +111,9 @@ def train_in_process(run_dir, *overrides) -> dict:
 
 
 def nma_run(run_dir, *overrides, mpi=0, timeout=600, one_core=False):
-    """`python -m nma.run` into run_dir; under `mpiexec -n mpi` with each rank bound to a core of its own,
-    or with one_core on the first core alone (as a SLURM job with --cpus-per-task=1 runs it)."""
+    """`python -m nma.run` into run_dir; under `mpiexec -n mpi` with each rank bound to a core of
+    its own, or with one_core on the first core alone (as a SLURM job with --cpus-per-task=1 runs
+    it)."""
     cmd = [sys.executable, "-m", "nma.run", f"hydra.run.dir={run_dir}", *overrides]
     if mpi:
         cmd = [MPIEXEC, "-n", str(mpi), "-bind-to", "core", *cmd]
@@ -108,7 +126,8 @@ def nma_run(run_dir, *overrides, mpi=0, timeout=600, one_core=False):
 
 class HeldElsewhere:
     """Run directories whose lock (nma.cli.RUN_LOCK) another process holds, as a run does from its
-    checks to its end: `with HeldElsewhere(dir, ...):`; the lock files name 'process 4242 on elsewhere'."""
+    checks to its end: `with HeldElsewhere(dir, ...):`; the lock files name 'process 4242 on
+    elsewhere'."""
 
     def __init__(self, *run_dirs):
         self.locks = [Path(d) / ".lock" for d in run_dirs]
@@ -116,13 +135,16 @@ class HeldElsewhere:
     def __enter__(self):
         for lock in self.locks:
             lock.parent.mkdir(parents=True, exist_ok=True)
-        code = ("import fcntl, sys, time\n"
-                "files = [open(p, 'a+') for p in sys.argv[1:]]\n"
-                "for f in files:\n"
-                "    fcntl.flock(f, fcntl.LOCK_EX); f.write('process 4242 on elsewhere'); f.flush()\n"
-                "print('held', flush=True); time.sleep(300)")
-        self.proc = subprocess.Popen([sys.executable, "-c", code, *map(str, self.locks)], stdout=subprocess.PIPE,
-                                     text=True)
+        code = (
+            "import fcntl, sys, time\n"
+            "files = [open(p, 'a+') for p in sys.argv[1:]]\n"
+            "for f in files:\n"
+            "    fcntl.flock(f, fcntl.LOCK_EX); f.write('process 4242 on elsewhere'); f.flush()\n"
+            "print('held', flush=True); time.sleep(300)"
+        )
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", code, *map(str, self.locks)], stdout=subprocess.PIPE, text=True
+        )
         assert self.proc.stdout.readline().strip() == "held"
         return self
 
@@ -153,10 +175,11 @@ def _flatten(tree, prefix=""):
 
 @pytest.fixture(scope="session")
 def translation_run(tmp_path_factory):
-    """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the first on 2
-    of the 4 evaluation targets; its units stated: mm and N), shared by the training, checkpoint, cluster and evaluation tests, and
-    trained once for all of pytest-xdist's worker processes (the first to ask trains it under a lock).
-    It runs on one core: that a run finishes there (within nma_run's timeout) is checked with it."""
+    """A two-step translation run (fidelity fast, wandb offline; an evaluation after each step, the
+    first on 2 of the 4 evaluation targets; its units stated: mm and N), shared by the training,
+    checkpoint, cluster and evaluation tests, and trained once for all of pytest-xdist's worker
+    processes (the first to ask trains it under a lock). It runs on one core: that a run finishes
+    there (within nma_run's timeout) is checked with it."""
     import fcntl
 
     root = tmp_path_factory.getbasetemp()
@@ -167,14 +190,26 @@ def translation_run(tmp_path_factory):
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (run_dir / "metrics.json").exists():
             shutil.rmtree(run_dir, ignore_errors=True)
-            # in physical units: the paper's E = 0.07 read as MPa (a soft silicone's), a 10 mm cell, 10 mm thick
-            nma_run(run_dir, "task=translation", "logger=wandb", *FAST, "trainer.eval_every=1",
-                    "trainer.eval_subset=2", "material.unit=MPa", "part.scale=2", "part.thickness=10",
-                    one_core=True, timeout=300)
+            # in physical units: the paper's E = 0.07 read as MPa (a soft silicone's), a 10 mm cell,
+            # 10 mm thick
+            nma_run(
+                run_dir,
+                "task=translation",
+                "logger=wandb",
+                *FAST,
+                "trainer.eval_every=1",
+                "trainer.eval_subset=2",
+                "material.unit=MPa",
+                "part.scale=2",
+                "part.thickness=10",
+                one_core=True,
+                timeout=300,
+            )
     return run_dir
 
 
 def copy_run(src, dst):
     import shutil
+
     shutil.copytree(src, dst)
     return dst

@@ -10,10 +10,10 @@ without rerunning it (slow: make test-all).
 
 Tolerances: the pins were made on one machine; another CPU rounds differently, which moves a
 loss after a few steps by about 1e-9 and a 20-step metric by well under a percent (LOSS_RTOL,
-METRIC_RTOL).
-A deliberate change of a pinned number: `python tests/test_canaries.py --pin [name ...]` rewrites
-tests/canaries.json, and the commit that carries it says why the numbers moved.
+METRIC_RTOL). A deliberate change of a pinned number: `python tests/test_canaries.py --pin [name
+...]` rewrites tests/canaries.json, and the commit that carries it says why the numbers moved.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,18 +29,40 @@ LOSS_RTOL, METRIC_RTOL = 1e-6, 1e-2
 FAST_EVAL = ["logger=none", "trainer.progress=false", "trainer.animation_frames=0"]
 
 # name: the overrides of `python -m nma.run`
-REPRODUCTIONS = {name: [f"experiment=repro_{name}", "trainer.steps=3", "trainer.eval_every=3"]
-                 for name in ("translation", "rotation_single", "rotation_double", "shape_matching",
-                              "mnist_lookup", "dynamic_follow", "dynamic_energy")}
-TASKS = {task: [f"task={task}", "trainer.steps=20"]
-         for task in ("translation", "rotation_single", "rotation_double", "shape_matching",
-                      "digital_mnist")}
+REPRODUCTIONS = {
+    name: [f"experiment=repro_{name}", "trainer.steps=3", "trainer.eval_every=3"]
+    for name in (
+        "translation",
+        "rotation_single",
+        "rotation_double",
+        "shape_matching",
+        "mnist_lookup",
+        "dynamic_follow",
+        "dynamic_energy",
+    )
+}
+TASKS = {
+    task: [f"task={task}", "trainer.steps=20"]
+    for task in (
+        "translation",
+        "rotation_single",
+        "rotation_double",
+        "shape_matching",
+        "digital_mnist",
+    )
+}
 # tasks in time name their scene; a training step solves a whole trajectory, so they take fewer
-TASKS.update({task: [f"task={task}", "scene=translation", "trainer.steps=4"]
-              for task in ("follow_path", "energy_focus")})
+TASKS.update(
+    {
+        task: [f"task={task}", "scene=translation", "trainer.steps=4"]
+        for task in ("follow_path", "energy_focus")
+    }
+)
 TIMED = ("task_follow_path", "task_energy_focus")  # four steps beat rest, not yet the frozen floor
-CASES = {**{f"repro_{k}": v for k, v in REPRODUCTIONS.items()},
-         **{f"task_{k}": v for k, v in TASKS.items()}}
+CASES = {
+    **{f"repro_{k}": v for k, v in REPRODUCTIONS.items()},
+    **{f"task_{k}": v for k, v in TASKS.items()},
+}
 
 
 def run(name: str, run_dir: Path) -> dict:
@@ -49,9 +71,14 @@ def run(name: str, run_dir: Path) -> dict:
 
     train_in_process(run_dir, *CASES[name], *FAST_EVAL)
     metrics = json.loads((Path(run_dir) / "metrics.json").read_text())
-    return {"losses": [h["loss"] for h in metrics["history"]], "metric": metrics["value"],
-            "frozen_floor": metrics.get("frozen_floor"), "no_actuation": metrics["no_actuation"],
-            "failed": metrics["failed_solves"], "invalid_states": metrics.get("invalid_states", 0)}
+    return {
+        "losses": [h["loss"] for h in metrics["history"]],
+        "metric": metrics["value"],
+        "frozen_floor": metrics.get("frozen_floor"),
+        "no_actuation": metrics["no_actuation"],
+        "failed": metrics["failed_solves"],
+        "invalid_states": metrics.get("invalid_states", 0),
+    }
 
 
 def pins() -> dict:
@@ -70,8 +97,11 @@ def test_canary(name, tmp_path):
         if name == "task_digital_mnist":
             assert got["metric"] > got["no_actuation"]  # digits of the ten shown right
         else:
-            start = got["no_actuation"] if name in TIMED or got["frozen_floor"] is None \
+            start = (
+                got["no_actuation"]
+                if name in TIMED or got["frozen_floor"] is None
                 else got["frozen_floor"]
+            )
             better = got["metric"] > start if name == "task_energy_focus" else got["metric"] < start
             assert better, (got["metric"], start)
 
@@ -102,8 +132,13 @@ def test_readme_rotation_double_beats_the_frozen_design(tmp_path):
 
     quoted = readme_quote(r"about ([0-9.]+) deg after 20 steps")
     floor = readme_quote(r"([0-9.]+) for the frozen design")
-    nma_run(tmp_path, "task=rotation_double", "trainer.steps=20", "logger=none",
-            "trainer.progress=false")
+    nma_run(
+        tmp_path,
+        "task=rotation_double",
+        "trainer.steps=20",
+        "logger=none",
+        "trainer.progress=false",
+    )
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["frozen_floor"] == pytest.approx(floor, abs=0.05)
     assert metrics["value"] == pytest.approx(quoted, abs=0.1) and metrics["value"] < floor / 2
@@ -121,7 +156,8 @@ if __name__ == "__main__":  # python tests/test_canaries.py --pin [name ...]
     pinned = pins() if PINS.is_file() else {}
     for name in chosen:
         with tempfile.TemporaryDirectory() as tmp:
-            pinned[name] = {k: v for k, v in run(name, Path(tmp)).items()
-                            if k in ("losses", "metric")}
+            pinned[name] = {
+                k: v for k, v in run(name, Path(tmp)).items() if k in ("losses", "metric")
+            }
         print(name, pinned[name]["metric"], flush=True)
         PINS.write_text(json.dumps(pinned, indent=1, sort_keys=True) + "\n")

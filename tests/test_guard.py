@@ -1,5 +1,6 @@
 """The guard on the reproductions (experiments/guard.py): results/ is never worse than its record
 beyond a metric's noise band, and the record moves down only with a reason."""
+
 import json
 
 import pytest
@@ -30,7 +31,9 @@ def sandbox(tmp_path, monkeypatch):
 
     def write(value):
         (tmp_path / "demo" / "result.json").write_text(
-            json.dumps({"joint": value, "stamp": {"commit": "abc1234"}}))
+            json.dumps({"joint": value, "stamp": {"commit": "abc1234"}})
+        )
+
     return write
 
 
@@ -56,8 +59,11 @@ def test_a_deliberate_change_is_accepted_with_its_reason(sandbox):
     assert guard.check(record)
     guard.accept(record, "demo", "the element bound on by default")
     assert guard.check(record) == []
-    assert record["demo"]["joint"] == {"best": 2.0, "commit": "abc1234",
-                                       "accepted": "the element bound on by default"}
+    assert record["demo"]["joint"] == {
+        "best": 2.0,
+        "commit": "abc1234",
+        "accepted": "the element bound on by default",
+    }
 
 
 def test_a_recorded_metric_missing_from_results_is_named(sandbox):

@@ -3,7 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nma.geometry.discretise import Resolution, discretise
+from nma.discretise import Resolution, discretise
 from nma.geometry.scene import Group, PatchSceneSpec, bilinear_net
 from nma.mechanics.energy import force_and_tangents, quadrature, strain_energy
 from nma.mechanics.material import material, neo_hookean, piola, tangent
@@ -35,7 +35,8 @@ def test_rigid_motion_has_zero_energy_and_force(translation, motion):
 
 
 def test_tangent_is_the_derivative_of_the_force(translation):
-    """Element tangents contracted with a direction equal the directional derivative of the force."""
+    """Element tangents contracted with a direction equal the directional derivative of the
+    force."""
     sim, X = translation
     mat = material(0.07, 0.4)
     quad = quadrature(sim.disc.solid, X)
@@ -44,6 +45,7 @@ def test_tangent_is_the_derivative_of_the_force(translation):
     v = jax.random.normal(key2, X.shape)
     _, kel = force_and_tangents(sim.disc.solid, quad, u, mat)
     from nma.solver.assembly import element_dofs
+
     ed = element_dofs(sim.disc.solid)
     Kv = jnp.zeros(X.size).at[ed].add(jnp.einsum("eab,eb->ea", kel.elements, v.reshape(-1)[ed]))
     jvp = jax.jvp(lambda u: force_and_tangents(sim.disc.solid, quad, u, mat)[0], (u,), (v,))[1]
@@ -64,12 +66,16 @@ def test_elements_in_chunks_give_the_terms_of_all_at_once(translation, monkeypat
     results = []
     for above in (0, np.inf):  # every scene in chunks; none
         monkeypatch.setattr(energy, "CHUNK_ABOVE", above)
-        results.append(jax.jit(lambda u: energy.energy_force_tangents(sim.disc.solid, quad, u, mat))(u))
+        results.append(
+            jax.jit(lambda u: energy.energy_force_tangents(sim.disc.solid, quad, u, mat))(u)
+        )
     for chunked, whole in zip(*map(jax.tree_util.tree_leaves, results)):
         if not np.size(whole):  # the contact blocks of a scene without contact
             continue
         assert np.all(np.isfinite(whole))
-        np.testing.assert_allclose(chunked, whole, rtol=1e-13, atol=1e-15 * float(jnp.max(jnp.abs(whole))))
+        np.testing.assert_allclose(
+            chunked, whole, rtol=1e-13, atol=1e-15 * float(jnp.max(jnp.abs(whole)))
+        )
 
 
 def test_material_derivatives_match_finite_differences():
@@ -80,32 +86,49 @@ def test_material_derivatives_match_finite_differences():
     fd = np.zeros((2, 2))
     for i in range(2):
         for j in range(2):
-            E = np.zeros((2, 2)); E[i, j] = h
+            E = np.zeros((2, 2))
+            E[i, j] = h
             fd[i, j] = (neo_hookean(F + E, mu, kappa) - neo_hookean(F - E, mu, kappa)) / (2 * h)
     np.testing.assert_allclose(piola(jnp.asarray(F), mu, kappa), fd, rtol=1e-8)
     # the closed-form stress and tangent equal autodiff of the energy
-    np.testing.assert_allclose(piola(jnp.asarray(F), mu, kappa), jax.grad(neo_hookean)(jnp.asarray(F), mu, kappa),
-                               rtol=1e-13)
+    np.testing.assert_allclose(
+        piola(jnp.asarray(F), mu, kappa),
+        jax.grad(neo_hookean)(jnp.asarray(F), mu, kappa),
+        rtol=1e-13,
+    )
     C = np.asarray(tangent(jnp.asarray(F), mu, kappa))
-    np.testing.assert_allclose(C, jax.hessian(neo_hookean)(jnp.asarray(F), mu, kappa), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(C, C.transpose(2, 3, 0, 1), atol=1e-12)  # major symmetry (hyperelastic)
+    np.testing.assert_allclose(
+        C, jax.hessian(neo_hookean)(jnp.asarray(F), mu, kappa), rtol=1e-12, atol=1e-14
+    )
+    # major symmetry (hyperelastic)
+    np.testing.assert_allclose(C, C.transpose(2, 3, 0, 1), atol=1e-12)
 
 
 def test_zero_actuation_gives_zero_displacement(translation):
     sim, _ = translation
     mat = material(0.07, 0.3)
     sol = sim.solve(sim.init_params(), jnp.zeros(2), mat)
-    assert np.abs(sol.u).max() == 0.0 and sim.energy(sim.reference_points(sim.init_params()), sol.u, mat) == 0.0
+    assert (
+        np.abs(sol.u).max() == 0.0
+        and sim.energy(sim.reference_points(sim.init_params()), sol.u, mat) == 0.0
+    )
 
 
 def _patch_test_scene(F0, grading=1.0):
-    """One distorted patch whose every boundary control point is a point actuator moved by (F0 - I) X."""
+    """One distorted patch whose every boundary control point is a point actuator moved by (F0 - I)
+    X."""
     net = bilinear_net([(0, 0), (4, 0), (4, 3), (0, 3)])
-    net[2, 2] += (0.4, -0.3)  # interior distortion: the map is curved, the exact solution stays affine
+    # interior distortion: the map is curved, the exact solution stays affine
+    net[2, 2] += (0.4, -0.3)
     net[1, 3] += (-0.2, 0.25)
     probe = discretise(PatchSceneSpec("probe", net[None]), Resolution(8, 3, grading=grading))
     X = np.asarray(probe.reference_points({}))
-    on_edge = (np.isclose(X[:, 0], 0) | np.isclose(X[:, 0], 4) | np.isclose(X[:, 1], 0) | np.isclose(X[:, 1], 3))
+    on_edge = (
+        np.isclose(X[:, 0], 0)
+        | np.isclose(X[:, 0], 4)
+        | np.isclose(X[:, 1], 0)
+        | np.isclose(X[:, 1], 3)
+    )
     groups = []
     for k, x in enumerate(X[on_edge]):
         groups.append(Group(f"p{k}", (tuple(x), tuple(x)), k, tuple((F0 - np.eye(2)) @ x)))
@@ -114,7 +137,8 @@ def _patch_test_scene(F0, grading=1.0):
 
 @pytest.mark.parametrize("nu, grading", [(0.3, 1.0), (0.49, 1.0), (0.3, 2.5)])
 def test_patch_test_reproduces_homogeneous_stretch(nu, grading):
-    """Also with knots graded towards the corners (fidelity.grading): non-uniform spans pass it too."""
+    """Also with knots graded towards the corners (fidelity.grading): non-uniform spans pass it
+    too."""
     F0 = np.array([[1.25, 0.1], [-0.05, 0.85]])
     spec, n = _patch_test_scene(F0, grading)
     sim = Simulator(discretise(spec, Resolution(8, 3, grading=grading)), "pardiso")

@@ -1,6 +1,7 @@
 """Results a reader can move and read (experiments/results.py, experiments/repro.py):
 repository-relative paths in results/, and the figure of the path a follow_path design traces
 against its target."""
+
 import json
 import sys
 from pathlib import Path
@@ -16,12 +17,18 @@ import results  # noqa: E402
 
 
 def test_paths_inside_the_repository_are_written_relative_to_it():
-    summary = {"runs": {"joint": str(ROOT / "outputs" / "repro" / "x" / "joint")}, "n": 3,
-               "files": [str(ROOT / "a.png"), "/elsewhere/b.png"],
-               "command": f"python experiments/repro.py x --out {ROOT / 'outputs' / 'v'} s=2"}
+    summary = {
+        "runs": {"joint": str(ROOT / "outputs" / "repro" / "x" / "joint")},
+        "n": 3,
+        "files": [str(ROOT / "a.png"), "/elsewhere/b.png"],
+        "command": f"python experiments/repro.py x --out {ROOT / 'outputs' / 'v'} s=2",
+    }
     assert results.relative(summary) == {
-        "runs": {"joint": "outputs/repro/x/joint"}, "n": 3, "files": ["a.png", "/elsewhere/b.png"],
-        "command": "python experiments/repro.py x --out outputs/v s=2"}
+        "runs": {"joint": "outputs/repro/x/joint"},
+        "n": 3,
+        "files": ["a.png", "/elsewhere/b.png"],
+        "command": "python experiments/repro.py x --out outputs/v s=2",
+    }
     assert results.relative(str(ROOT)) == "."
 
 
@@ -36,8 +43,9 @@ def strings(value):
         yield value
 
 
-@pytest.mark.parametrize("result", sorted((ROOT / "results").glob("*/result.json")),
-                         ids=lambda p: p.parent.name)
+@pytest.mark.parametrize(
+    "result", sorted((ROOT / "results").glob("*/result.json")), ids=lambda p: p.parent.name
+)
 def test_no_result_names_a_path_of_the_machine_that_made_it(result):
     """results/*/: the runs, files and commands named relative to the repository, never absolute."""
     body = json.loads(result.read_text())
@@ -53,8 +61,13 @@ def fake_follow_run(run: Path, reached_offset: float) -> np.ndarray:
     steps."""
     (run / ".hydra").mkdir(parents=True)
     (run / "fields").mkdir()
-    OmegaConf.save({"task": {"window": [2, 4], "period_steps": 4, "point": "pointer"},
-                    "scene": {"tracked": {"pointer": [10.0, 5.0]}}}, run / ".hydra" / "config.yaml")
+    OmegaConf.save(
+        {
+            "task": {"window": [2, 4], "period_steps": 4, "point": "pointer"},
+            "scene": {"tracked": {"pointer": [10.0, 5.0]}},
+        },
+        run / ".hydra" / "config.yaml",
+    )
     with h5py.File(run / "fields" / "trajectories.h5", "w") as f:
         f["times"] = 0.5 * np.arange(5)
     # a quarter turn a step: at the window's steps 2, 3, 4 the angle is phi + pi, + 3 pi / 2, + 2 pi

@@ -1,4 +1,5 @@
 """Pore shape matching (paper Sec. 4.2): the target generator, the loss, its gradient."""
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +15,11 @@ def setup(simulator):
     sim = simulator("shape_matching", quad_points=3)
     task = shape_matching(ShapeMatchingTask(eval_targets=16), sim)
     X = sim.reference_points(sim.init_params())
-    return sim, task, task.observe(sim, sim.init_params(), X, jnp.zeros_like(X), material(0.07, 0.3))
+    return (
+        sim,
+        task,
+        task.observe(sim, sim.init_params(), X, jnp.zeros_like(X), material(0.07, 0.3)),
+    )
 
 
 def test_targets_are_deterministic_and_fresh_per_key(setup):
@@ -24,7 +29,8 @@ def test_targets_are_deterministic_and_fresh_per_key(setup):
     np.testing.assert_array_equal(task.sample(key, 4), again.sample(key, 4))
     np.testing.assert_array_equal(task.eval_set(), again.eval_set())
     assert not np.allclose(task.sample(key, 4), task.sample(jax.random.PRNGKey(4), 4))
-    other = shape_matching(ShapeMatchingTask(dataset_seed=1, eval_targets=16), sim)  # other frequencies
+    # other frequencies
+    other = shape_matching(ShapeMatchingTask(dataset_seed=1, eval_targets=16), sim)
     assert not np.allclose(task.sample(key, 4), other.sample(key, 4))
 
 
@@ -40,8 +46,17 @@ def test_targets_run_like_the_pore_and_are_spaced_by_arc_length(setup):
     # equal arc length between neighbours: exact along a unit square's outline (perimeter 4, so
     # 48 points lie 1/12 apart along its edges)
     edge = np.linspace(0.0, 1.0, 101)[:-1]
-    square = np.concatenate([np.stack(p, -1) for p in ((edge, 0 * edge), (1 + 0 * edge, edge),
-                                                      (1 - edge, 1 + 0 * edge), (0 * edge, 1 - edge))])
+    square = np.concatenate(
+        [
+            np.stack(p, -1)
+            for p in (
+                (edge, 0 * edge),
+                (1 + 0 * edge, edge),
+                (1 - edge, 1 + 0 * edge),
+                (0 * edge, 1 - edge),
+            )
+        ]
+    )
     square = np.concatenate([square, square[:1]])
     s = np.arange(48) / 12.0
     side, f = np.floor(s).astype(int), s - np.floor(s)
@@ -55,7 +70,8 @@ def test_loss_is_zero_for_a_similar_copy_and_positive_otherwise(setup):
     target = task.targets(task.eval_set()[0])
     th = 0.7
     R = jnp.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-    copy = 3.0 * jnp.roll(target, 11, axis=0) @ R.T + jnp.array([5.0, -2.0])  # scaled, rotated, re-indexed
+    # scaled, rotated, re-indexed
+    copy = 3.0 * jnp.roll(target, 11, axis=0) @ R.T + jnp.array([5.0, -2.0])
     assert float(shape_distance(copy, target)) < 1e-12
     assert float(shape_distance(pore, target)) > 0.05
     mirrored = copy * jnp.array([1.0, -1.0])  # a reflection is not a rotation

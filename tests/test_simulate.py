@@ -20,34 +20,56 @@ def test_simulate_writes_fields_figure_and_json(tmp_path):
     assert len(lines) == 1, proc.stdout  # stdout is the result only; logs go to stderr
     assert "libtpu" not in proc.stderr  # JAX's TPU probe is not news on a CPU
     result = json.loads(lines[0])
-    for key in ("scene", "dofs", "tracked", "energy", "load_steps", "newton_iterations", "converged", "seconds"):
+    for key in (
+        "scene",
+        "dofs",
+        "tracked",
+        "energy",
+        "load_steps",
+        "newton_iterations",
+        "converged",
+        "seconds",
+    ):
         assert key in result
     assert result["scene"] == "translation" and result["dofs"] == 3462 and result["converged"]
-    # a mild actuation of the initial design: a physical state, its walls 1.25 wide at rest barely thinner
+    # a mild actuation of the initial design: a physical state, its walls 1.25 wide at rest barely
+    # thinner
     assert result["valid"] is True and result["validity"]["problems"] == []
     assert 0.5 < result["validity"]["min_J"] < 1.0 and 1.0 < result["validity"]["min_gap"] < 1.25
-    # d0 = 1 moves the left side by (-1, 0) and d1 = -0.5 the right by (+0.5, 0): the pointer goes left
+    # d0 = 1 moves the left side by (-1, 0) and d1 = -0.5 the right by (+0.5, 0): the pointer goes
+    # left
     assert result["tracked"]["pointer"][0] < 12.5
     with h5py.File(tmp_path / "fields.h5") as f:
         u = f["control/displacement"][()]
         assert np.all(np.isfinite(u)) and np.abs(u).max() > 0.5
         assert f["mesh/cells"].shape[1] == 4 and np.all(f["fields/J"][()] > 0)
-        np.testing.assert_allclose(f["mesh/deformed"][()] - f["mesh/reference"][()],
-                                   f["fields/displacement"][()][:, :2])
+        np.testing.assert_allclose(
+            f["mesh/deformed"][()] - f["mesh/reference"][()], f["fields/displacement"][()][:, :2]
+        )
     assert "fields.h5:/mesh/cells" in (tmp_path / "fields.xdmf").read_text()
     assert (tmp_path / "deformation.png").stat().st_size > 10_000
-    omega = np.asarray(result["natural_frequencies"])  # small vibrations about the equilibrium (nma.dynamics.modes)
+    # small vibrations about the equilibrium (nma.dynamics.modes)
+    omega = np.asarray(result["natural_frequencies"])
     assert len(omega) == 3 and np.all(omega > 0) and np.all(np.diff(omega) >= 0)
     np.testing.assert_allclose(result["natural_periods"], 2 * np.pi / omega)
 
 
 @pytest.mark.slow
 def test_simulate_in_time_says_when_the_static_model_suffices(tmp_path):
-    """The strip's actuation raised over 10000 time units, ~25 of its lowest natural periods (~400): the
-    run says the static model suffices, and its last state (generalised-alpha, the high frequencies
-    damped) is the static equilibrium to within 1% of the motion."""
-    proc = simulate(tmp_path, "scene=strip", "actuation=[1.0,1.0]", "fidelity=fast", "dynamics=generalised_alpha",
-                    "dynamics.rho_inf=0.5", "dynamics.ramp=10000", "dynamics.dt=2000", "dynamics.steps=10")
+    """The strip's actuation raised over 10000 time units, ~25 of its lowest natural periods (~400):
+    the run says the static model suffices, and its last state (generalised-alpha, the high
+    frequencies damped) is the static equilibrium to within 1% of the motion."""
+    proc = simulate(
+        tmp_path,
+        "scene=strip",
+        "actuation=[1.0,1.0]",
+        "fidelity=fast",
+        "dynamics=generalised_alpha",
+        "dynamics.rho_inf=0.5",
+        "dynamics.ramp=10000",
+        "dynamics.dt=2000",
+        "dynamics.steps=10",
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     dyn = json.loads(proc.stdout.strip().splitlines()[-1])["dynamics"]
     assert dyn["completed"] and dyn["every_state_physical"] and dyn["time_steps"] == 10
@@ -55,20 +77,31 @@ def test_simulate_in_time_says_when_the_static_model_suffices(tmp_path):
     assert "static model gives the same answer" in proc.stderr
     assert dyn["final_vs_static"] < 0.01
     with h5py.File(tmp_path / "trajectory.h5") as f:
-        assert f["times"].shape == (11,) and f["u"].shape[:1] == (11,) and f["tracked/top_left"].shape == (11, 2)
+        assert (
+            f["times"].shape == (11,)
+            and f["u"].shape[:1] == (11,)
+            and f["tracked/top_left"].shape == (11, 2)
+        )
 
 
 def test_failed_solve_exits_1_with_a_json_line(tmp_path):
-    proc = simulate(tmp_path, "scene=translation", "actuation=[4.0,-4.0]", "fidelity=fast", "solver.max_iters=2")
+    proc = simulate(
+        tmp_path, "scene=translation", "actuation=[4.0,-4.0]", "fidelity=fast", "solver.max_iters=2"
+    )
     assert proc.returncode == 1, proc.stderr[-2000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])  # valid JSON: NaN would not parse
     assert result["converged"] is False and 0.0 <= result["load_reached"] < 1.0
-    assert "iteration limit" in result["error"] and proc.stderr.strip().splitlines()[-1].startswith("error: ")
+    assert "iteration limit" in result["error"] and proc.stderr.strip().splitlines()[-1].startswith(
+        "error: "
+    )
 
 
 def test_json_line_has_null_for_non_finite_values():
     from nma.simulate import json_safe
-    line = json.dumps(json_safe({"residual": float("nan"), "x": [1.0, float("inf")], "n": 3}), allow_nan=False)
+
+    line = json.dumps(
+        json_safe({"residual": float("nan"), "x": [1.0, float("inf")], "n": 3}), allow_nan=False
+    )
     assert json.loads(line) == {"residual": None, "x": [1.0, None], "n": 3}
 
 
@@ -85,15 +118,35 @@ def _settings(*overrides):
         return validate(compose(config_name="simulate", overrides=list(overrides)))
 
 
-def test_a_completed_run_in_time_reports_and_checks_every_state(tmp_path):
+def test_a_completed_run_in_time_reports_and_checks_every_state(tmp_path, monkeypatch):
     """Six steps of 1.1 (six sums of 1.1 fall short of 1.1 x 6, by which a state found by its time
     would be lost): all seven states are in trajectory.h5, checked, and in the peak kinetic
-    energy."""
+    energy.  One modal solve in all, at rest (where the run starts), whose lowest frequency also
+    sets the damping."""
+    from nma.dynamics import modes
     from nma.simulate import run
 
-    result = run(_settings("scene=strip", "actuation=[0.01,0.01]", "fidelity=fast",
-                           "dynamics=newmark", "dynamics.dt=1.1", "dynamics.steps=6",
-                           "dynamics.ramp=6", "output.figure=false"), tmp_path)
+    solves = []
+    monkeypatch.setattr(
+        modes,
+        "natural_frequencies",
+        lambda *a, f=modes.natural_frequencies, **k: solves.append(1) or f(*a, **k),
+    )
+    result = run(
+        _settings(
+            "scene=strip",
+            "actuation=[0.01,0.01]",
+            "fidelity=fast",
+            "dynamics=newmark",
+            "dynamics.dt=1.1",
+            "dynamics.steps=6",
+            "dynamics.ramp=6",
+            "dynamics.damping_ratio=0.01",
+            "output.figure=false",
+        ),
+        tmp_path,
+    )
+    assert len(solves) == 1 and result["natural_frequencies_about"] == "rest"
     dyn = result["dynamics"]
     assert result["converged"] and result["valid"] and dyn["completed"]
     assert dyn["every_state_physical"] and dyn["final_vs_static"] is not None
@@ -110,9 +163,16 @@ def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
     which step, from and to which time, and why; the JSON's top level says not converged and not
     valid, its dynamics the states reached, each checked, and no final state to compare with the
     static one."""
-    proc = simulate(tmp_path, "scene=translation", "actuation=[4.0,-4.0]", "dynamics=newmark",
-                    "dynamics.steps=4", "dynamics.ramp=0", "dynamics.max_cuts=0",
-                    "output.figure=false")
+    proc = simulate(
+        tmp_path,
+        "scene=translation",
+        "actuation=[4.0,-4.0]",
+        "dynamics=newmark",
+        "dynamics.steps=4",
+        "dynamics.ramp=0",
+        "dynamics.max_cuts=0",
+        "output.figure=false",
+    )
     assert proc.returncode == 1, proc.stderr[-2000:]
     line = proc.stderr.strip().splitlines()[-1]
     assert line.startswith("error: scene translation") and "time stepping failed: time step" in line
@@ -135,10 +195,18 @@ def test_simulate_serves_the_dense_backend_static_and_in_time(tmp_path):
     SuperLU's."""
     from nma.simulate import run
 
-    common = ("scene=strip", "actuation=[1.0,1.0]", "fidelity=fast", "dynamics=newmark",
-              "dynamics.dt=50", "dynamics.steps=2", "output.figure=false")
-    dense, host = (run(_settings(*common, f"solver={name}"), tmp_path / name)
-                   for name in ("dense", "superlu"))
+    common = (
+        "scene=strip",
+        "actuation=[1.0,1.0]",
+        "fidelity=fast",
+        "dynamics=newmark",
+        "dynamics.dt=50",
+        "dynamics.steps=2",
+        "output.figure=false",
+    )
+    dense, host = (
+        run(_settings(*common, f"solver={name}"), tmp_path / name) for name in ("dense", "superlu")
+    )
     assert dense["converged"] and dense["dynamics"]["completed"]
     assert dense["dynamics"]["states_reached"] == 3
     np.testing.assert_allclose(dense["natural_frequencies"], host["natural_frequencies"], rtol=1e-8)
@@ -149,17 +217,31 @@ def test_simulate_serves_the_dense_backend_static_and_in_time(tmp_path):
             np.testing.assert_allclose(a["u"][()], b["u"][()], atol=1e-10)
 
 
-@pytest.mark.parametrize("overrides, message", [
-    (["material.E=1e-300"], "material.E must be a finite number in [1e-30, 1e30], got 1e-300"),
-    (["material.E=1e31"], "material.E must be a finite number in [1e-30, 1e30]"),
-    (["material.density=1e-300"],
-     "material.density must be a finite number in [1e-30, 1e30], got 1e-300"),
-    (["material.E=1e30", "material.density=1e-30"],
-     "material.density must be in [3.85e-11, 1e+30] for this material: its shear modulus 3.85e+29 "
-     "over the density"),
-    (["material=yeoh", "material.parameters={C10: 1e-20, C20: 0, C30: 0}", "material.density=1e25"],
-     "material.density must be in [1e-30, 2e+20] for this material: its shear modulus 2e-20"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["material.E=1e-300"], "material.E must be a finite number in [1e-30, 1e30], got 1e-300"),
+        (["material.E=1e31"], "material.E must be a finite number in [1e-30, 1e30]"),
+        (
+            ["material.density=1e-300"],
+            "material.density must be a finite number in [1e-30, 1e30], got 1e-300",
+        ),
+        (
+            ["material.E=1e30", "material.density=1e-30"],
+            "material.density must be in [3.85e-11, 1e+30] for this material: its shear modulus "
+            "3.85e+29 "
+            "over the density",
+        ),
+        (
+            [
+                "material=yeoh",
+                "material.parameters={C10: 1e-20, C20: 0, C30: 0}",
+                "material.density=1e25",
+            ],
+            "material.density must be in [1e-30, 2e+20] for this material: its shear modulus 2e-20",
+        ),
+    ],
+)
 def test_a_material_no_float64_solve_can_honour_is_refused_before_work(overrides, message):
     from nma.errors import ConfigError
 
@@ -168,19 +250,21 @@ def test_a_material_no_float64_solve_can_honour_is_refused_before_work(overrides
 
 
 def test_natural_frequencies_that_cannot_be_computed_are_null_with_the_reason(
-        simulator, monkeypatch, caplog, tmp_path):
+    simulator, monkeypatch, caplog, tmp_path
+):
     """A modal solve that fails (ARPACK; a singular tangent) leaves the static result standing: the
     frequencies null and why, said on the log, not a traceback.  A run in time, which needs the
     lowest one for its time step, fails with the reason (the JSON line then says so)."""
     from scipy.sparse.linalg import ArpackError
 
-    from nma.dynamics import report
+    from nma.dynamics import modes, report
+    from nma.dynamics.settings import lowest_frequency
     from nma.errors import SolverError
 
     def fails(*args, **kwargs):
         raise ArpackError(-9)
 
-    monkeypatch.setattr(report, "natural_frequencies", fails)
+    monkeypatch.setattr(modes, "natural_frequencies", fails)
     sim = simulator("translation", "superlu", ctrl_per_patch=5, quad_points=2)
     X = sim.reference_points(sim.init_params())
     out = report.frequencies(sim, X, sim.material_params, 1.0, np.zeros(2), np.zeros(X.shape))
@@ -188,11 +272,20 @@ def test_natural_frequencies_that_cannot_be_computed_are_null_with_the_reason(
     assert "ArpackError" in out["natural_frequencies_error"]
     assert "could not be computed" in caplog.text
     with pytest.raises(SolverError, match="lowest natural frequency at rest could not be computed"):
-        report.lowest_frequency(sim, X, sim.material_params, 1.0)
+        lowest_frequency(sim, X, sim.material_params, 1.0)
     from nma.simulate import run
 
-    result = run(_settings("scene=strip", "actuation=[0.1,0.1]", "fidelity=fast",
-                           "dynamics=newmark", "dynamics.steps=2", "output.figure=false"), tmp_path)
+    result = run(
+        _settings(
+            "scene=strip",
+            "actuation=[0.1,0.1]",
+            "fidelity=fast",
+            "dynamics=newmark",
+            "dynamics.steps=2",
+            "output.figure=false",
+        ),
+        tmp_path,
+    )
     assert result["natural_frequencies"] is None and "energy" in result
     assert result["converged"] is False and result["valid"] is False
     assert "lowest natural frequency at rest could not be computed" in result["error"]

@@ -2,6 +2,7 @@
 trajectory's arrays on each call, each refused in one line that names the argument and what is
 allowed (nma.checks, as Simulator.equilibrium's).  The ranges are the config's, declared once
 (nma.dynamics.options.RANGES, nma.mechanics.options.DENSITY_RANGE)."""
+
 from __future__ import annotations
 
 import jax
@@ -11,7 +12,7 @@ import numpy as np
 from .. import checks
 from ..errors import ConfigError
 from ..mechanics.options import DENSITY_RANGE
-from .options import RANGES, SCHEMES
+from .options import ADJOINTS, CONTROLLERS, RANGES, SCHEMES
 
 
 def ranges() -> dict[str, str]:
@@ -20,29 +21,53 @@ def ranges() -> dict[str, str]:
     return {**RANGES, "density": DENSITY_RANGE}
 
 
-def check_dynamics(sim, scheme, rho_inf, dt, steps, density, alpha, beta, waveform, max_cuts, v0,
-                   workers) -> None:
+def check_dynamics(sim, o, density, waveform, v0, workers, parts) -> None:
     """Refuses Dynamics(...)'s arguments outside their ranges: TypeError or ConfigError naming
-    the argument."""
+    the argument.  `o`: the settings (DynamicsOptions), `parts`: the controller and adjoint given
+    (names, or objects of their kinds)."""
+    from .adjoints import Adjoint
+    from .controllers import Controller
+
     where, spec = "Dynamics", ranges()
-    if scheme not in SCHEMES:
-        raise ConfigError(f"{where}: scheme must be one of {list(SCHEMES)}, got {scheme!r}")
-    for name, value in (("rho_inf", rho_inf), ("dt", dt), ("density", density), ("alpha", alpha),
-                        ("beta", beta)):
+    for name, registry, kind in (
+        ("scheme", SCHEMES, None),
+        ("controller", CONTROLLERS, Controller),
+        ("adjoint", ADJOINTS, Adjoint),
+    ):
+        value = parts.get(name, getattr(o, name))
+        if kind is not None and isinstance(value, kind):
+            continue
+        if not isinstance(value, str) or value not in registry.names():
+            raise ConfigError(f"{where}: {name} must be one of {registry.names()}, got {value!r}")
+    numbers = [
+        ("rho_inf", o.rho_inf),
+        ("density", density),
+        ("alpha", o.alpha),
+        ("beta", o.beta),
+        ("rtol", o.rtol),
+        ("atol", o.atol),
+    ] + ([("dt", o.dt)] if o.dt is not None else [])
+    for name, value in numbers:
         checks.number(where, name, value, spec[name])
-    checks.integer(where, "steps", steps, spec["steps"])
-    checks.integer(where, "max_cuts", max_cuts, spec["max_cuts"])
+    checks.integer(where, "steps", o.steps, spec["steps"])
+    checks.integer(where, "max_cuts", o.max_cuts, spec["max_cuts"])
+    if o.checkpoints is not None:
+        checks.integer(where, "checkpoints", o.checkpoints, spec["checkpoints"])
     if workers is not None:
         checks.integer(where, "workers", workers, "[1, 4096]")
     n_act = sim.n_actuations
     if not callable(waveform):
-        raise TypeError(f"{where}: waveform must be a function f(coeffs, t) -> the scene's {n_act} "
-                        "actuations at time t (nma.dynamics.waveform.Fourier), got "
-                        f"{type(waveform).__name__} {waveform!r:.80}")
+        raise TypeError(
+            f"{where}: waveform must be a function f(coeffs, t) -> the scene's {n_act} "
+            "actuations at time t (nma.dynamics.waveform.Fourier), got "
+            f"{type(waveform).__name__} {waveform!r:.80}"
+        )
     actuators = getattr(waveform, "actuators", None)
     if isinstance(actuators, int) and actuators != n_act:
-        raise ConfigError(f"{where}: waveform drives {actuators} actuators; scene "
-                          f"{sim.disc.spec.name} has {n_act}")
+        raise ConfigError(
+            f"{where}: waveform drives {actuators} actuators; scene "
+            f"{sim.disc.spec.name} has {n_act}"
+        )
     if v0 is not None:
         n = sim.disc.mesh.n_points
         checks.array(where, "v0", v0, (2 * n,) if np.shape(v0) == (2 * n,) else (n, 2))
@@ -68,19 +93,24 @@ def check_run(dyn, where: str, X, coeffs, mat, finite: bool = True):
     try:
         out = jax.eval_shape(dyn.waveform, jax.ShapeDtypeStruct(coeffs_.shape, jnp.float64), 0.0)
     except (TypeError, ValueError, IndexError) as e:
-        raise ValueError(f"{where}: the waveform cannot take coeffs of shape {coeffs_.shape}: "
-                         f"{str(e).splitlines()[0]}") from None
+        raise ValueError(
+            f"{where}: the waveform cannot take coeffs of shape {coeffs_.shape}: "
+            f"{str(e).splitlines()[0]}"
+        ) from None
     if getattr(out, "shape", None) != (sim.n_actuations,):
-        raise ValueError(f"{where}: the waveform must give the scene's {sim.n_actuations} "
-                         f"actuations, got shape {getattr(out, 'shape', type(out).__name__)} from "
-                         f"coeffs of shape {coeffs_.shape}")
+        raise ValueError(
+            f"{where}: the waveform must give the scene's {sim.n_actuations} "
+            f"actuations, got shape {getattr(out, 'shape', type(out).__name__)} from "
+            f"coeffs of shape {coeffs_.shape}"
+        )
     return tuple(a.astype(jnp.float64) for a in (X_, coeffs_, mat_))
 
 
 def checked_function(dyn, trajectory):
-    """`trajectory(X, coeffs, mat)` (nma.dynamics.trajectory._differentiable) behind the front
+    """`trajectory(X, coeffs, mat)` (nma.dynamics.backward.differentiable) behind the front
     door: shapes and dtypes checked (under vmap: one sample's), concrete arguments' finiteness and
     the material's ranges too; other real precisions taken as float64."""
+
     def function(X, coeffs, mat):
         return trajectory(*check_run(dyn, "Dynamics.function", X, coeffs, mat))
 

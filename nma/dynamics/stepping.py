@@ -5,10 +5,12 @@ A step's residual, with u_{n+1} = (free u_f, prescribed u_D(t_{n+1})) and the st
 is the static residual with the step's Inertia (nma.dynamics.schemes).  Its adjoint: for cotangents
 (u_bar, v_bar, a_bar) of z_{n+1}, the explicit update (v, a)_{n+1} = U(u_{n+1}, z_n) passes its part
 on to u_{n+1} and z_n; then lambda = K_eff^-1 u_bar_f with K_eff = K(u_{n+1}) + B, and
-(z_n, X, mat, u_D)_bar -= lambda^T dR/d(z_n, X, mat, u_D), u_D also receiving u_bar's prescribed rows.
-R depends on the design X through the quadrature and the mass and damping blocks only, which are the
-same in every step: the sweep sums their cotangents and pulls the sum back to X once (design_vjp).
+(z_n, X, mat, u_D)_bar -= lambda^T dR/d(z_n, X, mat, u_D), u_D also receiving u_bar's prescribed
+rows. R depends on the design X through the quadrature and the mass and damping blocks only, which
+are the same in every step: the sweep sums their cotangents and pulls the sum back to X once
+(design_vjp).
 """
+
 from __future__ import annotations
 
 from functools import partial
@@ -26,7 +28,9 @@ class StepKernels:
     """The jitted pieces: the design's quadrature and matrices, a step's Inertia, the update, the
     adjoint's pieces."""
 
-    def __init__(self, eqs: Equations, scheme: Scheme, density: float, alpha: float, beta: float, waveform):
+    def __init__(
+        self, eqs: Equations, scheme: Scheme, density: float, alpha: float, beta: float, waveform
+    ):
         self.eqs, self.scheme = eqs, scheme
         design = partial(_design, eqs, scheme, density, alpha, beta)
         self.design = jax.jit(design)
@@ -37,7 +41,9 @@ class StepKernels:
         self.update_vjp = jax.jit(partial(_update_vjp, scheme))
         self.pullback = jax.jit(partial(_pullback, eqs, scheme))
         self.design_vjp = jax.jit(lambda X, mat, bar: jax.vjp(design, X, mat)[1](bar))
-        self.actuation_vjp = jax.jit(lambda c, t, d_bar: jax.vjp(lambda c: waveform(c, t), c)[1](d_bar)[0])
+        self.actuation_vjp = jax.jit(
+            lambda c, t, d_bar: jax.vjp(lambda c: waveform(c, t), c)[1](d_bar)[0]
+        )
 
 
 def _design(eqs, scheme, density, alpha, beta, X, mat):
@@ -49,20 +55,23 @@ def _design(eqs, scheme, density, alpha, beta, X, mat):
 
 
 def internal_force(eqs: Equations, quad, mat, u, scheme: Scheme | None = None):
-    """The strain energy's gradient at u (flat, every dof); 0 for a scheme that does not use it (alpha_f 0)."""
+    """The strain energy's gradient at u (flat, every dof); 0 for a scheme that does not use it
+    (alpha_f 0)."""
     if scheme is not None and scheme.alpha_f == 0.0:
         return jnp.zeros_like(u)
     return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
 
 
 def _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt):
-    """The step's Inertia from the state at t_n (flat arrays, every dof) and the design's quadrature,
-    mass and damping blocks."""
-    return scheme.inertia(u, v, a, internal_force(eqs, quad, mat, u, scheme), M, C, eqs.edofs[:eqs.elements], dt)
+    """The step's Inertia from the state at t_n (flat arrays, every dof) and the design's
+    quadrature, mass and damping blocks."""
+    f_n = internal_force(eqs, quad, mat, u, scheme)
+    return scheme.inertia(u, v, a, f_n, M, C, eqs.edofs[: eqs.elements], dt)
 
 
 def step_residual(eqs, scheme, quad, M, C, mat, u, v, a, u_free_next, u_D_next, dt):
-    return eqs.residual(quad, u_free_next, u_D_next, 1.0, mat, _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt))
+    inertia = _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt)
+    return eqs.residual(quad, u_free_next, u_D_next, 1.0, mat, inertia)
 
 
 def _update_vjp(scheme, u_next, u, v, a, dt, v_bar, a_bar):
@@ -72,8 +81,9 @@ def _update_vjp(scheme, u_next, u, v, a, dt, v_bar, a_bar):
 
 
 def _pullback(eqs, scheme, design, mat, u, v, a, u_free_next, u_D_next, dt, lam, design_bar):
-    """-lambda^T dR/d(design, mat, u, v, a, u_D), the design's part (quadrature, M, C) added to the sum
-    design_bar: (design_bar, mat_bar, u_bar, v_bar, a_bar, u_D_bar)."""
+    """-lambda^T dR/d(design, mat, u, v, a, u_D), the design's part (quadrature, M, C) added to
+    the sum design_bar: (design_bar, mat_bar, u_bar, v_bar, a_bar, u_D_bar)."""
+
     def residual(design, mat, u, v, a, u_D):
         return step_residual(eqs, scheme, *design, mat, u, v, a, u_free_next, u_D, dt)
 

@@ -1,95 +1,138 @@
-"""Trajectories: implicit time stepping on the host, each step a Newton solve with the static solver's
-safeguards, and the discrete adjoint sweep backwards through the steps, as one differentiable function.
+"""Trajectories: implicit time stepping on the host, each step a Newton solve with the static
+solver's safeguards, and the discrete adjoint swept backwards through the steps, as one
+differentiable function.  Three parts, each chosen by name (nma.dynamics.options):
 
-Forward: the run is split into `steps` intervals of dt; an interval whose step does not converge (a
-load-step cut below solver.min_increment, the element bound, the iteration limit) is redone in 2, 4,
-... equal steps, up to 2^max_cuts: the static solver's load-step cuts become time-step cuts.  A step
-that still fails ends the trajectory and says at which time, after how many intervals and why; its
-later states hold the last one reached.  Interval k runs from k dt to (k + 1) dt: the states and the
-steps are known by these indices, never by comparing times.  Each step starts Newton at the
-previous state, so its predictor is the linearised response to the step's boundary motion and
-inertia; its first linearisation is the last step's final one with the Inertia swapped
-(nma.solver.newton.continue_in_time), not another pass over the elements.
+- the scheme (nma.dynamics.schemes): the integrator of one step;
+- the step controller (nma.dynamics.controllers): how each output interval, from k dt to
+  (k + 1) dt, is covered by steps.  The states are reported at k dt, k = 0 .. steps, known by
+  their index, never by comparing times;
+- the adjoint (nma.dynamics.adjoints): what the forward pass keeps for the backward one.
 
-Backward: the states at the start of every step are kept (3 vectors of 2 n_points floats a step,
-u, v, a, plus the step's free displacements); nothing else.  The adjoint of a step needs the factor of
-K(u_{n+1}) + B at the converged state, which Newton never factorised (its last factor is of the
-iterate before), so the backward sweep factorises it: the neighbouring step's factor is too far from it
-for iterative refinement to converge in a few back-substitutions.
+Each step starts Newton at the previous state, so its predictor is the linearised response to the
+step's boundary motion and inertia; its first linearisation is the last step's final one with the
+Inertia swapped (nma.solver.starts.continue_in_time), not another pass over the elements, except
+where the controller or the adjoint starts it afresh (nma.dynamics.stepper).  An interval the
+controller cannot step ends the trajectory, which says at which time, after how many intervals and
+why; its later states hold the last one reached.
 """
+
 from __future__ import annotations
 
-import itertools
-import threading
+import dataclasses
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from ..errors import ConfigError, SolverError
+from ..errors import ConfigError
 from ..solver.batch import split_samples, stack_samples
 from ..solver.host import HostNewton
 from ..solver.status import Status
+from .adjoints import Adjoint
+from .backward import Sweep, TrajectoryInfo, differentiable
 from .checks import check_dynamics, check_run, checked_function
+from .controllers import Controller
+from .options import ADJOINTS, CONTROLLERS, DEFAULTS, DynamicsOptions
 from .schemes import Scheme
+from .stepper import Stepper
 from .stepping import StepKernels
 
-KEPT_TRAJECTORIES = 256  # forward records awaiting their adjoint; the oldest go beyond this
+__all__ = ["Dynamics", "Trace", "TrajectoryInfo"]
 
 
-class TrajectoryInfo(NamedTuple):
-    """How a trajectory went: status (a Status: CONVERGED when every step did, else the failed
-    step's), the time it reached (the failed step's start, else the end), its time steps (cut
-    intervals count each of their steps), the intervals that were cut, Newton's iterations over all
-    steps, and the intervals completed: the states at k dt, k = 0..intervals, are solved (all
-    `steps` + 1 of them where it converged), the later ones hold the last."""
-    status: jnp.ndarray
-    time: jnp.ndarray
-    steps: jnp.ndarray
-    cuts: jnp.ndarray
-    iterations: jnp.ndarray
-    intervals: jnp.ndarray
+class Trace(NamedTuple):
+    """What a forward pass leaves for the adjoint besides u and v."""
 
-
-class _Step(NamedTuple):
-    t: float           # the step's start
-    dt: float
-    z: tuple           # (u, v, a) at its start, flat, every dof
-    u_free: np.ndarray  # its solution's free dofs
-    d: np.ndarray      # the actuation at its end
-    k: int             # the interval it belongs to (from k dt to (k + 1) dt)
-    j: int             # its place in that interval (0: it starts at k dt)
+    a: np.ndarray  # (steps + 1, n_points, 2): the accelerations at k dt
+    counts: np.ndarray  # (steps,): each interval's accepted steps (0 past a failure)
+    control: np.ndarray  # (steps,): what the controller carried into each interval
 
 
 class Dynamics:
     """Time stepping of a Simulator's scene under an actuation waveform (nma.dynamics.waveform).
+    The defaults are the config's (nma.dynamics.options.DynamicsOptions, the `dynamics` settings);
+    `Simulator.dynamics` builds one from those settings.
 
     Args:
         sim: The Simulator (any linear backend: each step's Newton is driven from the host).
-        scheme: `newmark` or `generalised_alpha` (rho_inf its spectral radius at infinite frequency).
-        dt: The time step; steps: how many (the trajectory's states are at k dt, k = 0..steps).
+        scheme: A name in nma.dynamics.options.SCHEMES: `newmark` or `generalised_alpha` (rho_inf
+            its spectral radius at infinite frequency).
+        dt: The time step, the interval between the states reported; None: a 20th of the lowest
+            natural period at rest of the scene's initial design (one modal solve).
+        steps: Intervals: the trajectory's states are at k dt, k = 0..steps.
         density: Mass per unit area (the model's units).
         alpha, beta: Rayleigh damping C = alpha M + beta K_0.
         waveform: f(coeffs, t) -> actuations at time t, traceable (nma.dynamics.waveform.Fourier).
-        max_cuts: An interval may be redone in up to 2^max_cuts steps.
-        v0: Initial velocity (n_points, 2) or None (rest); undamped only (its initial acceleration is 0).
+        max_cuts: The shortest step is dt / 2^max_cuts (controllers cuts and adaptive).
+        v0: Initial velocity (n_points, 2) or None (rest); undamped only (its initial acceleration
+            is 0).
+        workers: Threads solving a batch's samples at once (None: the simulator's).
+        controller: A name in nma.dynamics.options.CONTROLLERS (`fixed`, `cuts`, `adaptive`) or a
+            Controller; rtol and atol are adaptive's tolerances.
+        adjoint: A name in nma.dynamics.options.ADJOINTS (`store_all`, `checkpointed`) or an
+            Adjoint; checkpoints: checkpointed's kept states (None: ceil(sqrt(steps)) apart).
     """
 
-    def __init__(self, sim, scheme: str = "newmark", rho_inf: float = 1.0, dt: float = 1.0, steps: int = 100,
-                 density: float = 1.0, alpha: float = 0.0, beta: float = 0.0, waveform=None, max_cuts: int = 4,
-                 v0=None, workers: int | None = None):
-        check_dynamics(sim, scheme, rho_inf, dt, steps, density, alpha, beta, waveform, max_cuts, v0,
-                       workers)
+    def __init__(
+        self,
+        sim,
+        scheme: str = DEFAULTS.scheme,
+        rho_inf: float = DEFAULTS.rho_inf,
+        dt: float | None = DEFAULTS.dt,
+        steps: int = DEFAULTS.steps,
+        density: float = 1.0,
+        alpha: float = DEFAULTS.alpha,
+        beta: float = DEFAULTS.beta,
+        waveform=None,
+        max_cuts: int = DEFAULTS.max_cuts,
+        v0=None,
+        workers: int | None = None,
+        controller: str | Controller = DEFAULTS.controller,
+        rtol: float = DEFAULTS.rtol,
+        atol: float = DEFAULTS.atol,
+        adjoint: str | Adjoint = DEFAULTS.adjoint,
+        checkpoints: int | None = DEFAULTS.checkpoints,
+    ):
+        parts = {"controller": controller, "adjoint": adjoint}
+        named = {k: p if isinstance(p, str) else type(p).__name__ for k, p in parts.items()}
+        options = DynamicsOptions(
+            scheme,
+            rho_inf,
+            dt,
+            steps,
+            alpha,
+            beta,
+            max_cuts,
+            named["controller"],
+            rtol,
+            atol,
+            named["adjoint"],
+            checkpoints,
+        )
+        check_dynamics(sim, options, density, waveform, v0, workers, parts)
         if np.any(np.asarray(sim.equations.f_ext)):
-            raise ConfigError("dynamics starts at rest: a scene with a dead load would start out of balance")
+            raise ConfigError(
+                "dynamics starts at rest: a scene with a dead load would start out of balance"
+            )
         if v0 is not None and (alpha or beta):
-            raise ConfigError("dynamics: an initial velocity needs no damping (alpha = beta = 0), so that the "
-                              "initial acceleration is 0")
+            raise ConfigError(
+                "dynamics: an initial velocity needs no damping (alpha = beta = 0), "
+                "so that the initial acceleration is 0"
+            )
+        if dt is None:
+            from .settings import lowest_frequency, time_step
+
+            X0 = sim.reference_points(sim.init_params())
+            dt = time_step(None, lowest_frequency(sim, X0, sim.material_params, density))
+            options = dataclasses.replace(options, dt=dt)
+        self.options = options
         self.sim, self.eqs = sim, sim.equations
         self.scheme = Scheme.of(scheme, rho_inf)
         self.dt, self.steps, self.max_cuts = float(dt), int(steps), int(max_cuts)
+        self.controller = (
+            CONTROLLERS.get(controller)(options) if isinstance(controller, str) else controller
+        )
+        self.adjoint = ADJOINTS.get(adjoint)(options) if isinstance(adjoint, str) else adjoint
         self.waveform = waveform
         self.kernels = StepKernels(self.eqs, self.scheme, density, alpha, beta, waveform)
         self.newton = HostNewton(self.eqs, sim.backend, sim.options)
@@ -98,208 +141,149 @@ class Dynamics:
         self.n = 2 * sim.disc.mesh.n_points
         self.v0 = np.zeros(self.n) if v0 is None else np.asarray(v0, float).reshape(-1)
         self.workers = workers or sim.workers
-        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="nma-dynamics") if self.workers > 1 else None
-        self._kept: dict[int, list] = {}
-        self._tokens = itertools.count(1)
-        self._lock = threading.Lock()
-        self.function = checked_function(self, _differentiable(self))
+        self._pool = (
+            ThreadPoolExecutor(self.workers, thread_name_prefix="nma-dynamics")
+            if self.workers > 1
+            else None
+        )
+        self.function = checked_function(self, differentiable(self))
 
     @classmethod
-    def from_settings(cls, sim, s, density: float, waveform, X, mat, workers: int | None = None,
-                      omega_1: float | None = None) -> "Dynamics":
-        """From a DynamicsConfig `s` (nma.schema.physics): dt null takes a 20th of the lowest natural period
-        at rest, and a damping ratio becomes alpha = zeta omega, beta = zeta / omega at its frequency (the
-        lowest natural one where none is given; `omega_1`: that one, where the caller has it)."""
-        from .modes import natural_frequencies
+    def from_settings(
+        cls,
+        sim,
+        s,
+        density: float,
+        waveform,
+        X=None,
+        mat=None,
+        workers: int | None = None,
+        omega_1: float | None = None,
+        v0=None,
+    ) -> "Dynamics":
+        """From a DynamicsConfig `s` (nma.schema.physics; Simulator.dynamics takes a mapping of
+        its fields too): dt null takes a 20th of the lowest natural period at rest, and a damping
+        ratio becomes alpha = zeta omega, beta = zeta / omega at its frequency (the lowest
+        natural one where none is given).  That frequency is of the design X under the material
+        mat (the scene's initial design and material where None); `omega_1`: that one, where the
+        caller has it (no modal solve)."""
+        from .settings import resolve
 
-        needed = s.dt is None or (s.damping_ratio is not None and s.damping_frequency is None)
-        if omega_1 is None and needed:
-            omega_1 = float(natural_frequencies(sim, X, mat, density, count=1)[0])
-        dt = s.dt if s.dt is not None else 2.0 * np.pi / omega_1 / 20.0
-        alpha, beta = s.alpha, s.beta
-        if s.damping_ratio is not None:
-            omega = s.damping_frequency or omega_1
-            alpha, beta = s.damping_ratio * omega, s.damping_ratio / omega
-        return cls(sim, s.scheme, s.rho_inf, dt, s.steps, density, alpha, beta, waveform, s.max_cuts, workers=workers)
+        s = resolve(sim, s, density, X, mat, omega_1)
+        return cls(
+            sim,
+            s.scheme,
+            s.rho_inf,
+            s.dt,
+            s.steps,
+            density,
+            s.alpha,
+            s.beta,
+            waveform,
+            s.max_cuts,
+            v0,
+            workers,
+            s.controller,
+            s.rtol,
+            s.atol,
+            s.adjoint,
+            s.checkpoints,
+        )
 
     @property
     def times(self) -> np.ndarray:
+        """The output times k dt, k = 0 .. steps."""
         return self.dt * np.arange(self.steps + 1)
 
     # -- one sample, forward
     def run(self, X, coeffs, mat):
-        """(u (steps + 1, n_points, 2), v (same), TrajectoryInfo, the steps kept for the adjoint)."""
+        """(u (steps + 1, n_points, 2), v (same), TrajectoryInfo, the Trace the adjoint needs)."""
         X, coeffs, mat = check_run(self, "Dynamics.run", X, coeffs, mat, finite=False)
-        k = self.kernels
-        X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
-        design = k.design(X, mat)
         ws = self.sim.backend.workspace()
-        z = (np.asarray(k.full(jnp.zeros(len(self.free)), k.actuation(coeffs, 0.0))), self.v0, np.zeros(self.n))
-        us, vs, kept = [z[0]], [z[1]], []
-        status, substeps, cuts, iterations, previous = Status.CONVERGED, 0, 0, 0, None
-        t, intervals = float(self.times[-1]), self.steps
+        stepper = Stepper(self, X, coeffs, mat, ws)
+        z = stepper.start()
+        states = [z]
+        counts, control = np.zeros(self.steps, np.int32), np.zeros(self.steps)
+        status, substeps, cuts, iterations, rejected, previous = Status.CONVERGED, 0, 0, 0, 0, None
+        t, intervals, state = float(self.times[-1]), self.steps, self.controller.start(self.dt)
         try:
             for i in range(self.steps):  # interval i: times[i] to times[i + 1], states by index
-                done, failed, its, previous = self._interval(X, coeffs, mat, design, z, i, ws,
-                                                             previous)
-                iterations += its
-                if failed is not None:  # (NewtonInfo, the time of the step that failed)
-                    status, t, intervals = int(failed[0].status), failed[1], i
+                control[i] = state
+                if self.adjoint.restarts(i, self.steps):
+                    previous = None
+                out = self.controller.interval(stepper, z, i, state, previous)
+                iterations += out.iterations
+                rejected += out.rejected
+                if out.failed is not None:  # (NewtonInfo, the start of the step that failed)
+                    status, t, intervals = int(out.failed[0].status), out.failed[1], i
                     break
-                kept.extend(done)
-                substeps += len(done)
-                cuts += len(done) > 1
-                last = done[-1]
-                u1 = np.asarray(k.full(jnp.asarray(last.u_free), jnp.asarray(last.d)))
-                z = (u1, *self._next(last, u1))
-                us.append(z[0])
-                vs.append(z[1])
+                counts[i] = len(out.steps)
+                substeps += len(out.steps)
+                cuts += len(out.steps) > 1
+                z, previous, state = out.z, out.end, out.state
+                states.append(z)
         finally:
             self.sim.backend.release(ws)
-        while len(us) < self.steps + 1:  # after a failed step: the last state reached
-            us.append(us[-1])
-            vs.append(vs[-1])
-        shape = (self.steps + 1, -1, 2)
-        info = TrajectoryInfo(np.int32(status), np.float64(t), np.int32(substeps), np.int32(cuts),
-                              np.int32(iterations), np.int32(intervals))
-        return np.stack(us).reshape(shape), np.stack(vs).reshape(shape), info, kept
-
-    def _next(self, step: _Step, u1):
-        return tuple(np.asarray(a) for a in self.kernels.update(jnp.asarray(u1), *(jnp.asarray(x) for x in step.z),
-                                                                 step.dt))
-
-    def _interval(self, X, coeffs, mat, design, z, i, ws, previous):
-        """The steps of interval i, from times[i] to times[i + 1] (in 1, 2, 4, ... equal steps),
-        from the state z that the step `previous` (HostNewton.time_step) ended at: (steps, None,
-        iterations, the last step's end), or where even the finest fails (None, (NewtonInfo, time),
-        iterations, None)."""
-        k, iterations, t = self.kernels, 0, float(self.times[i])
-        for level in range(self.max_cuts + 1):
-            n = 2 ** level
-            h, zz, done, end = self.dt / n, z, [], previous
-            for j in range(n):
-                t0 = t + j * h
-                d1 = k.actuation(coeffs, t0 + h)
-                u, v, a = (jnp.asarray(x) for x in zz)
-                inertia = k.inertia(*design, mat, u, v, a, h)
-                start = (u[self.free], u[self.dirichlet], None, X)
-                u_free, info, end = self.newton.time_step(X, d1, mat, ws, start, inertia, end)
-                iterations += int(info.iterations)
-                if int(info.status) != Status.CONVERGED:
-                    failed = (info, t0)
-                    break
-                step = _Step(t0, h, zz, np.asarray(u_free), np.asarray(d1), i, j)
-                done.append(step)
-                u1 = np.asarray(k.full(u_free, d1))
-                zz = (u1, *self._next(step, u1))
-            else:
-                return done, None, iterations, end
-        return None, failed, iterations, None
+        states += [states[-1]] * (self.steps + 1 - len(states))  # after a failed step: the last
+        u, v, a = (np.stack(x).reshape(self.steps + 1, -1, 2) for x in zip(*states))
+        info = TrajectoryInfo(
+            np.int32(status),
+            np.float64(t),
+            np.int32(substeps),
+            np.int32(cuts),
+            np.int32(iterations),
+            np.int32(intervals),
+            np.int32(rejected),
+        )
+        return u, v, info, Trace(a, counts, control)
 
     # -- one sample, backward
-    def adjoint(self, kept: list, X, coeffs, mat, u_bar, v_bar):
-        """(X_bar, coeffs_bar, mat_bar) for cotangents of the states at the steps' times."""
-        k = self.kernels
-        X, coeffs, mat = (jnp.asarray(a) for a in (X, coeffs, mat))
-        design = k.design(X, mat)
-        design_bar = jax.tree_util.tree_map(jnp.zeros_like, design)
-        M, C = design[1:]
-        u_bar, v_bar = (np.asarray(a).reshape(self.steps + 1, -1) for a in (u_bar, v_bar))
-        mat_bar, c_bar = np.zeros(mat.shape), np.zeros(coeffs.shape)
-        # the last state solved, at interval m's start, holds for the states after it too (a
-        # trajectory that failed in interval m): their cotangents are its own
-        m = kept[-1].k + 1 if kept else 0
-        zb = [u_bar[m:].sum(axis=0), v_bar[m:].sum(axis=0), np.zeros(self.n)]
+    def backward(self, X, coeffs, mat, kept, counts, control, intervals: int, u_bar, v_bar):
+        """(X_bar, coeffs_bar, mat_bar) for cotangents u_bar, v_bar of the states at k dt, from what
+        the adjoint kept: `kept` = (u, v, a) at its kept output times, each interval's step count
+        and controller state, and the intervals the trajectory completed."""
         ws = self.sim.backend.workspace()
         try:
-            for step in reversed(kept):
-                u, v, a = (jnp.asarray(x) for x in step.z)
-                d1, uf1 = jnp.asarray(step.d), jnp.asarray(step.u_free)
-                u1 = k.full(uf1, d1)
-                un_b, u_b, v_b, a_b = k.update_vjp(u1, u, v, a, step.dt, jnp.asarray(zb[1]), jnp.asarray(zb[2]))
-                u1_bar = zb[0] + np.asarray(un_b)
-                B = self.scheme.blocks(M, C, step.dt)
-                kel = self.newton.linearised(lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel)
-                # K(u_{n+1}) + B differs from the neighbouring step's too much to refine from its factor
-                lam = ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[self.free], refine=False)
-                design_bar, mb, ub, vb, ab, uDb = k.pullback(design, mat, u, v, a, uf1, u1[self.dirichlet], step.dt,
-                                                             jnp.asarray(lam), design_bar)
-                d_bar = self.A.T @ (np.asarray(uDb) + u1_bar[self.dirichlet])
-                c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
-                mat_bar += np.asarray(mb)
-                zb = [np.asarray(u_b) + np.asarray(ub), np.asarray(v_b) + np.asarray(vb), np.asarray(a_b) + np.asarray(ab)]
-                if step.j == 0:  # back at its interval's start, a grid time: its state's cotangents
-                    zb[0] += u_bar[step.k]
-                    zb[1] += v_bar[step.k]
+            stepper = Stepper(self, X, coeffs, mat, ws)
+            index = self.adjoint.kept(self.steps)
+            index = range(self.steps + 1) if index is None else index
+            states = {
+                int(k): tuple(np.asarray(x[i]).reshape(-1) for x in kept)
+                for i, k in enumerate(index)
+            }
+            sweep = Sweep(self, stepper, u_bar, v_bar, int(intervals))
+            for step in self.adjoint.steps_back(
+                self, stepper, states, counts, control, int(intervals)
+            ):
+                sweep.step(step)
+            return sweep.result()
         finally:
             self.sim.backend.release(ws)
-        X_b, mat_b = k.design_vjp(X, mat, design_bar)
-        return np.asarray(X_b), c_bar, mat_bar + np.asarray(mat_b)
 
     # -- batches (pure_callback's broadcast_all)
     def _map(self, fn, items):
-        return list(self._pool.map(fn, items)) if self._pool and len(items) > 1 else [fn(i) for i in items]
+        if self._pool and len(items) > 1:
+            return list(self._pool.map(fn, items))
+        return [fn(i) for i in items]
 
-    def forward_batch(self, X, coeffs, mat, keep: bool):
+    def forward_batch(self, X, coeffs, mat):
         lead = np.shape(coeffs)[:-1]
         Xs, cs, ms = (split_samples(a, lead) for a in (X, coeffs, mat))
 
         def one(i):
-            u, v, info, kept = self.run(Xs[i], cs[i], ms[i])
-            token = 0
-            if keep:
-                token = next(self._tokens)
-                with self._lock:
-                    self._kept[token] = kept
-                    while len(self._kept) > KEPT_TRAJECTORIES:
-                        self._kept.pop(next(iter(self._kept)))
-            return u, v, info, np.int64(token)
+            u, v, info, trace = self.run(Xs[i], cs[i], ms[i])
+            return u, v, info, *trace
 
         return stack_samples(self._map(one, range(len(cs))), lead)
 
-    def backward_batch(self, X, coeffs, mat, u_bar, v_bar, token):
+    def backward_batch(self, X, coeffs, mat, u, v, a, counts, control, intervals, u_bar, v_bar):
         lead = np.shape(coeffs)[:-1]
-        Xs, cs, ms, ub, vb, tokens = (split_samples(a, lead) for a in (X, coeffs, mat, u_bar, v_bar, token))
+        args = (X, coeffs, mat, u, v, a, counts, control, intervals, u_bar, v_bar)
+        Xs, cs, ms, us, vs, as_, ns, cts, ms_, ub, vb = (split_samples(x, lead) for x in args)
 
         def one(i):
-            with self._lock:
-                kept = self._kept.get(int(tokens[i]))
-            if kept is None:
-                raise SolverError("dynamics: a trajectory's adjoint was asked after its forward record was dropped")
-            return self.adjoint(kept, Xs[i], cs[i], ms[i], ub[i], vb[i])
+            return self.backward(
+                Xs[i], cs[i], ms[i], (us[i], vs[i], as_[i]), ns[i], cts[i], ms_[i], ub[i], vb[i]
+            )
 
-        out = self._map(one, range(len(cs)))
-        with self._lock:
-            for t in set(tokens.tolist()):
-                self._kept.pop(int(t), None)
-        return stack_samples(out, lead)
-
-
-def _differentiable(dyn: Dynamics):
-    """trajectory(X, coeffs, mat) -> (u, v, TrajectoryInfo), differentiable in X, coeffs and mat (u and v
-    at the steps' times; vmap batches it over samples)."""
-    def call(X, coeffs, mat, keep):
-        m = dyn.steps + 1
-        state = jax.ShapeDtypeStruct((m, dyn.n // 2, 2), X.dtype)
-        kinds = (jnp.int32, X.dtype, jnp.int32, jnp.int32, jnp.int32, jnp.int32)
-        info = TrajectoryInfo(*(jax.ShapeDtypeStruct((), t) for t in kinds))
-        shapes = (state, state, info, jax.ShapeDtypeStruct((), jnp.int64))
-        return jax.pure_callback(lambda *a: dyn.forward_batch(*a, keep=keep), shapes, X, coeffs, mat,
-                                 vmap_method="broadcast_all")
-
-    @jax.custom_vjp
-    def trajectory(X, coeffs, mat):
-        return call(X, coeffs, mat, False)[:3]
-
-    def fwd(X, coeffs, mat):
-        u, v, info, token = call(X, coeffs, mat, True)
-        return (u, v, info), (X, coeffs, mat, token)
-
-    def bwd(res, cotangents):
-        X, coeffs, mat, token = res
-        out = tuple(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in (X, coeffs, mat))
-        return jax.pure_callback(dyn.backward_batch, out, X, coeffs, mat, cotangents[0], cotangents[1], token,
-                                 vmap_method="broadcast_all")
-
-    trajectory.defvjp(fwd, bwd)
-    return trajectory
+        return stack_samples(self._map(one, range(len(cs))), lead)

@@ -2,6 +2,7 @@
 
 Used for the colour nets (digital MNIST), the HDF5/XDMF deformation fields and the figures.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -15,8 +16,11 @@ from .mesh import Mesh
 
 
 @lru_cache(maxsize=None)
-def grid_basis(n_ctrl: int, samples: int, grading: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tensor basis (s*s, n*n) and its two parametric derivatives at a uniform s x s grid in [0, 1]^2."""
+def grid_basis(
+    n_ctrl: int, samples: int, grading: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tensor basis (s*s, n*n) and its two parametric derivatives at a uniform s x s grid in [0,
+    1]^2."""
     t = np.linspace(0.0, 1.0, samples)
     B, dB = basis_matrix(t, n_ctrl, grading=grading), basis_matrix(t, n_ctrl, 1, grading)
     kron = lambda a, b: np.einsum("pi,qj->pqij", a, b).reshape(samples * samples, n_ctrl * n_ctrl)
@@ -37,7 +41,9 @@ def sample_positions(mesh: Mesh, points: jnp.ndarray, samples: int) -> jnp.ndarr
 def sample_jacobian(mesh: Mesh, X: jnp.ndarray, u: jnp.ndarray, samples: int) -> jnp.ndarray:
     """(P, s*s) det F of the deformation at the material points."""
     _, dxi, deta = grid_basis(mesh.fidelity.ctrl_per_patch, samples, mesh.fidelity.grading)
-    grad = lambda v: jnp.stack([jnp.einsum("sk,pkd->psd", D, patch_nets(mesh, v)) for D in (dxi, deta)], -1)
+    grad = lambda v: jnp.stack(
+        [jnp.einsum("sk,pkd->psd", D, patch_nets(mesh, v)) for D in (dxi, deta)], -1
+    )
     dX, dx = grad(X), grad(X + u)  # (P, s*s, 2, 2): [component, parametric direction]
     det = lambda A: A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
     return det(dx) / det(dX)

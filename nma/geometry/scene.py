@@ -1,11 +1,12 @@
 """Declarative scenes: what a structure is, as data.
 
-A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned points, supports, tracked points, the
-movable corners and an optional central pore, built from a checked `SceneConfig` (nma/schema/scene.py:
-`SceneConfig.spec()`, or `nma.schema.scene_from_config` of a mapping), so a bad scene fails before any
-work starts.  A `PatchSceneSpec` is a general multi-patch
+A `SceneSpec` is a grid of cell tokens plus boundary groups, pinned points, supports, tracked
+points, the movable corners and an optional central pore, built from a checked `SceneConfig`
+(nma/schema/scene.py: `SceneConfig.spec()`, or `nma.schema.scene_from_config` of a mapping), so a
+bad scene fails before any work starts.  A `PatchSceneSpec` is a general multi-patch
 geometry given by its design nets (Cook's membrane is one patch).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -18,7 +19,9 @@ POROUS, SOLID, EMPTY = "P", "S", "."
 
 @dataclass(frozen=True)
 class Group:
-    """Control points on a straight boundary segment moved as a rigid block: u = d[actuation] * direction."""
+    """Control points on a straight boundary segment moved as a rigid block: u = d[actuation] *
+    direction."""
+
     name: str
     segment: tuple[tuple[float, float], tuple[float, float]]
     actuation: int
@@ -29,13 +32,16 @@ class Group:
 class Support:
     """Control points on a straight boundary segment held still in the given displacement components
     ((0, 1): clamped; one of them: sliding along the segment)."""
+
     segment: tuple[tuple[float, float], tuple[float, float]]
     components: tuple[int, ...]
 
 
 @dataclass(frozen=True)
 class Traction:
-    """A dead load per unit reference length on a straight boundary segment (used by Cook's membrane)."""
+    """A dead load per unit reference length on a straight boundary segment (used by Cook's
+    membrane)."""
+
     segment: tuple[tuple[float, float], tuple[float, float]]
     traction: tuple[float, float]
 
@@ -57,7 +63,8 @@ class SceneSpec:
     central_radii_init: float
     colours: bool
     supports: tuple[Support, ...] = ()
-    round_pore_corners: bool = False  # walls meet tangent at pore corners (nma.geometry.design.pore_nets)
+    # walls meet tangent at pore corners (nma.geometry.design.pore_nets)
+    round_pore_corners: bool = False
     # built by scene_from_config from a SceneConfig, whose schema holds the defaults and checks
 
     @property
@@ -75,6 +82,7 @@ class SceneSpec:
 @dataclass(frozen=True)
 class PatchSceneSpec:
     """A general multi-patch geometry: design nets (P, 5, 5, 2), clamped segments and tractions."""
+
     name: str
     nets: np.ndarray
     clamped: tuple[tuple[tuple[float, float], tuple[float, float]], ...] = ()
@@ -88,19 +96,25 @@ class PatchSceneSpec:
 
 
 def bilinear_net(corners: Sequence[Sequence[float]], n: int = 5) -> np.ndarray:
-    """(n, n, 2) control net of the bilinear map of a quadrilateral (corners counter-clockwise from (0,0))."""
+    """(n, n, 2) control net of the bilinear map of a quadrilateral (corners counter-clockwise from
+    (0,0))."""
     c = np.asarray(corners, float)
     s = np.linspace(0.0, 1.0, n)
     S, T = np.meshgrid(s, s, indexing="ij")
-    return ((1 - S) * (1 - T))[..., None] * c[0] + (S * (1 - T))[..., None] * c[1] \
-        + (S * T)[..., None] * c[2] + ((1 - S) * T)[..., None] * c[3]
+    return (
+        ((1 - S) * (1 - T))[..., None] * c[0]
+        + (S * (1 - T))[..., None] * c[1]
+        + (S * T)[..., None] * c[2]
+        + ((1 - S) * T)[..., None] * c[3]
+    )
 
 
 def cooks_membrane() -> PatchSceneSpec:
     """Cook's membrane: plane-strain trapezoid, left edge clamped, 100 N shear on the right edge."""
     nets = bilinear_net([(0.0, 0.0), (48.0, 44.0), (48.0, 60.0), (0.0, 44.0)])[None]
     return PatchSceneSpec(
-        name="cooks_membrane", nets=nets,
+        name="cooks_membrane",
+        nets=nets,
         clamped=(((0.0, 0.0), (0.0, 44.0)),),
         tractions=(Traction(((48.0, 44.0), (48.0, 60.0)), (0.0, 100.0 / 16.0)),),
         tracked={"tip": (48.0, 60.0)},

@@ -2,17 +2,19 @@
 
     b(s) = -(s - 1)^2 log s   for 0 < s < 1,   0 for s >= 1,
 
-C2 at s = 1 and infinite at s = 0.  Both barriers of the model use it: on det F / J_hat (the inversion
-barrier, nma.mechanics.energy) and on squared distance / d_hat^2 (contact, nma.mechanics.contact).
+C2 at s = 1 and infinite at s = 0.  Both barriers of the model use it: on det F / J_hat (the
+inversion barrier, nma.mechanics.energy) and on squared distance / d_hat^2 (contact,
+nma.mechanics.contact).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
 
 
 def ipc(s):
-    """b, b', b'' at s (elementwise; 0 at and above 1).  s > 0 is the caller's to keep: at s <= 0 the
-    values are those at s = 1."""
+    """b, b', b'' at s (elementwise; 0 at and above 1).  s > 0 is the caller's to keep: at s <= 0
+    the values are those at s = 1."""
     inside = s < 1.0
     s = jnp.where(inside & (s > 0), s, 1.0)
     log, q = jnp.log(s), s - 1.0

@@ -1,91 +1,133 @@
-"""The model's material: a hyperelastic law (nma.mechanics.laws) with its treatment of volume change.
+"""The model's material: a hyperelastic law (nma.mechanics.laws) with its treatment of volume
+change.
 
-The paper's law, Neo-Hookean in 2D (no thickness factor), has closed-form stress and tangent here:
-W(F) = mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2,  mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
-The other laws' stresses and tangents are W's derivatives by automatic differentiation.
-The material's parameters are an array (Neo-Hookean's [E, nu]) so that they are a differentiable input
-like any other.
+The material's strain energy is the law's compressible form W = psi - c0 log J + kappa/2 (log J)^2
+in plane strain; its stress and tangent are W's derivatives by automatic differentiation, or, for a
+law whose psi is Neo-Hookean's (`Law.closed_form`), the closed forms here:
+
+    W(F) = mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2,
+    mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
+
+The material's parameters are an array (the law's, then nu; Neo-Hookean's [E, nu]) so that they
+are a differentiable input like any other; the law reads them by name.
 """
+
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 
 from .. import checks
 from ..errors import ConfigError
-from ..settings import check_range, in_range
-from .laws import NEO_HOOKEAN, Law
-from .options import FORMULATIONS, MATERIAL_RANGES
+from ..settings import check_range
+from .laws import POISSON, Law, law_of
+from .laws.base import Named
+from .options import FORMULATIONS
 
 
 @dataclass(frozen=True)
 class Material:
-    """The model's material: a law (nma.mechanics.laws; the paper's Neo-Hookean by default) with its
-    treatment of volume change, `formulation` (one of FORMULATIONS: the volume term at every Gauss point,
-    or at each element's mean dilatation, which does not lock as nu -> 0.5: nma.mechanics.energy).  Its
-    parameters (the law's, then nu; Neo-Hookean's [E, nu]) are an array given to every solve
-    (`parameters(...)`), so that they are differentiable like the geometry."""
+    """The model's material: a law (nma.mechanics.laws; the paper's Neo-Hookean by default) with
+    its treatment of volume change, `formulation` (one of FORMULATIONS: the volume term at every
+    Gauss point, or at each element's mean dilatation, which does not lock as nu -> 0.5:
+    nma.mechanics.energy).  Its parameters (`names`: the law's, then nu; Neo-Hookean's [E, nu])
+    are an array given to every solve, so that they are differentiable like the geometry."""
+
     formulation: str = "displacement"
-    law: Law = NEO_HOOKEAN
+    law: Law = field(default_factory=lambda: law_of("neo_hookean"))
 
     def __post_init__(self):
         if self.formulation not in FORMULATIONS:
-            raise ConfigError(f"material.formulation must be one of {list(FORMULATIONS)}, got {self.formulation!r}")
+            raise ConfigError(
+                f"material.formulation must be one of {list(FORMULATIONS)}, "
+                f"got {self.formulation!r}"
+            )
 
     @property
     def mixed(self) -> bool:
         return self.formulation == "mixed"
 
     @property
+    def names(self) -> tuple[str, ...]:
+        """The parameter array's entries by name: the law's parameters, then nu."""
+        return (*self.law.names, POISSON.name)
+
+    @property
     def n_params(self) -> int:
         """The length of the parameter array: the law's parameters and nu."""
-        return len(self.law.names) + 1
+        return len(self.names)
+
+    def named(self, params: jnp.ndarray) -> Named:
+        """The parameter array by name (q of the law's functions)."""
+        return self.law.named(params[:-1], params[-1])
+
+    def nu(self, params: jnp.ndarray):
+        """Poisson's ratio of the parameter array."""
+        return self.named(params)[POISSON.name]
 
     def check(self, params, where: str = "equilibrium") -> None:
         """Refuses concrete parameters of another count than the law's and nu, or outside the law's
         ranges (ValueError naming `where`, the law and the entry)."""
-        names = (*self.law.names, "nu")
+        names = self.names
         if len(params) != len(names):
-            raise ValueError(f"{where}: mat must be law {self.law.name}'s [{', '.join(names)}]: "
-                             f"{len(names)} numbers, got {len(params)}")
-        ranges = {**self.law.ranges(), "nu": MATERIAL_RANGES["nu"]}
+            raise ValueError(
+                f"{where}: mat must be law {self.law.name}'s [{', '.join(names)}]: "
+                f"{len(names)} numbers, got {len(params)}"
+            )
         for name, number in zip(names, params):
-            if not in_range(float(number), ranges[name]):
-                raise ValueError(f"{where}: mat = [{', '.join(names)}] must have {name} in "
-                                 f"{ranges[name]}, got {float(number):g}")
+            spec = self.law.declared(name)
+            if not spec.admits(float(number)):
+                raise ValueError(
+                    f"{where}: mat = [{', '.join(names)}] must have {name} in "
+                    f"{spec.range}, got {float(number):g}"
+                )
 
     def moduli(self, params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
         """The initial shear and the bulk modulus (mu, kappa) of the parameters."""
-        if self.law is NEO_HOOKEAN:
-            return lame(params)
-        mu, nu = self.law.shear_modulus(params[:-1]), params[-1]
-        return mu, 2.0 * mu * (1.0 + nu) / (3.0 * (1.0 - 2.0 * nu))
+        q = self.named(params)
+        mu = self.law.shear_modulus(q)
+        return mu, self.law.bulk_modulus(q, mu)
 
     def point_terms(self, params: jnp.ndarray, volumetric: bool = True):
-        """W(F), P(F) = dW/dF and dP/dF as functions of deformation gradients (..., 2, 2): with or without
-        the volumetric term kappa/2 (log J)^2 (the `mixed` formulation adds it per element)."""
+        """W(F), P(F) = dW/dF and dP/dF as functions of deformation gradients (..., 2, 2): with or
+        without the volumetric term kappa/2 (log J)^2 (the `mixed` formulation adds it per
+        element)."""
         mu, kappa = self.moduli(params)
         k = kappa if volumetric else 0.0
-        if self.law is NEO_HOOKEAN:
-            return (jnp.vectorize(lambda f: neo_hookean(f, mu, k), signature="(2,2)->()"),
-                    lambda F: piola(F, mu, k), lambda F: tangent(F, mu, k))
-        p = params[:-1]
-        c0 = self.law.stress_free(p)
+        if self.law.closed_form:
+            return (
+                jnp.vectorize(lambda f: neo_hookean(f, mu, k), signature="(2,2)->()"),
+                lambda F: piola(F, mu, k),
+                lambda F: tangent(F, mu, k),
+            )
+        return self.derived_terms(params, k)
+
+    def derived_terms(self, params: jnp.ndarray, k):
+        """W(F) = psi - c0 log J + k/2 (log J)^2 of the law, and its first and second derivatives by
+        automatic differentiation (every law's; a closed-form law's check)."""
+        q = self.named(params)
+        c0 = self.law.stress_free(q)
 
         def W(f):
             logJ = jnp.log(det2(f))
-            return self.law.psi_plane(p, f.T @ f) - c0 * logJ + 0.5 * k * logJ ** 2
+            return self.law.psi_plane(q, f.T @ f) - c0 * logJ + 0.5 * k * logJ**2
 
-        return (jnp.vectorize(W, signature="(2,2)->()"), jnp.vectorize(jax.grad(W), signature="(2,2)->(2,2)"),
-                jnp.vectorize(jax.hessian(W), signature="(2,2)->(2,2,2,2)"))
+        return (
+            jnp.vectorize(W, signature="(2,2)->()"),
+            jnp.vectorize(jax.grad(W), signature="(2,2)->(2,2)"),
+            jnp.vectorize(jax.hessian(W), signature="(2,2)->(2,2,2,2)"),
+        )
 
 
 def material(E: float, nu: float) -> jnp.ndarray:
-    """[E, nu] as a float64 array, checked against the material's ranges (MATERIAL_RANGES)."""
+    """Neo-Hookean's [E, nu] as a float64 array, checked against their declared ranges."""
+    law = law_of("neo_hookean")
     for name, value in (("E", E), ("nu", nu)):
-        check_range(f"material.{name}", checks.real("material", name, value), MATERIAL_RANGES[name])
+        check_range(
+            f"material.{name}", checks.real("material", name, value), law.declared(name).range
+        )
     return jnp.array([E, nu], dtype=jnp.float64)
 
 
@@ -99,25 +141,29 @@ def from_lame(mu: float, kappa: float) -> jnp.ndarray:
     return material(E, nu)
 
 
-def lame(mat: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-    E, nu = mat[0], mat[1]
-    return E / (2.0 * (1.0 + nu)), E / (3.0 * (1.0 - 2.0 * nu))
-
-
 def det2(F: jnp.ndarray) -> jnp.ndarray:
     return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
 
 
 def neo_hookean(F: jnp.ndarray, mu, kappa) -> jnp.ndarray:
-    """Energy density of one 2x2 deformation gradient. Defined for J > 0 only: callers keep J > 0."""
+    """Energy density of one 2x2 deformation gradient. Defined for J > 0 only: callers keep
+    J > 0."""
     J = det2(F)
     logJ = jnp.log(J)
-    return 0.5 * mu * (jnp.sum(F * F) - 2.0 - 2.0 * logJ) + 0.5 * kappa * logJ ** 2
+    return 0.5 * mu * (jnp.sum(F * F) - 2.0 - 2.0 * logJ) + 0.5 * kappa * logJ**2
 
 
 def _inverse(F):
-    return jnp.stack([jnp.stack([F[..., 1, 1], -F[..., 0, 1]], -1),
-                      jnp.stack([-F[..., 1, 0], F[..., 0, 0]], -1)], -2) / det2(F)[..., None, None]
+    return (
+        jnp.stack(
+            [
+                jnp.stack([F[..., 1, 1], -F[..., 0, 1]], -1),
+                jnp.stack([-F[..., 1, 0], F[..., 0, 0]], -1),
+            ],
+            -2,
+        )
+        / det2(F)[..., None, None]
+    )
 
 
 def piola(F, mu, kappa):
@@ -127,21 +173,28 @@ def piola(F, mu, kappa):
 
 
 def tangent(F, mu, kappa):
-    """dP/dF: C_ijkl = mu d_ik d_jl + (mu - kappa log J) Fi_jk Fi_li + kappa Fi_ji Fi_lk, Fi = F^-1."""
+    """dP/dF: C_ijkl = mu d_ik d_jl + (mu - kappa log J) Fi_jk Fi_li + kappa Fi_ji Fi_lk,
+    Fi = F^-1."""
     Fi = _inverse(F)
     logJ = jnp.log(det2(F))[..., None, None, None, None]
     eye = jnp.eye(2)
-    return (mu * jnp.einsum("ik,jl->ijkl", eye, eye)
-            + (mu - kappa * logJ) * jnp.einsum("...jk,...li->...ijkl", Fi, Fi)
-            + kappa * jnp.einsum("...ji,...lk->...ijkl", Fi, Fi))
+    return (
+        mu * jnp.einsum("ik,jl->ijkl", eye, eye)
+        + (mu - kappa * logJ) * jnp.einsum("...jk,...li->...ijkl", Fi, Fi)
+        + kappa * jnp.einsum("...ji,...lk->...ijkl", Fi, Fi)
+    )
 
 
 def det_roots(F, dF):
-    """(..., 2) the positive roots t of det(F + t dF) = c0 + c1 t + c2 t^2 (2 x 2 matrices; inf where
-    there is none), computed without cancellation."""
+    """(..., 2) the positive roots t of det(F + t dF) = c0 + c1 t + c2 t^2 (2 x 2 matrices; inf
+    where there is none), computed without cancellation."""
     c0 = det2(F)
-    c1 = F[..., 0, 0] * dF[..., 1, 1] + dF[..., 0, 0] * F[..., 1, 1] \
-        - F[..., 0, 1] * dF[..., 1, 0] - dF[..., 0, 1] * F[..., 1, 0]
+    c1 = (
+        F[..., 0, 0] * dF[..., 1, 1]
+        + dF[..., 0, 0] * F[..., 1, 1]
+        - F[..., 0, 1] * dF[..., 1, 0]
+        - dF[..., 0, 1] * F[..., 1, 0]
+    )
     c2 = det2(dF)
     inf = jnp.inf
     disc_ = c1 * c1 - 4.0 * c2 * c0

@@ -1,5 +1,6 @@
-"""The solid whose energy nma.mechanics.energy integrates: the mesh, the material and, where the pores'
-walls may touch, their contact model."""
+"""The solid whose energy nma.mechanics.energy integrates: the mesh, the material and, where the
+pores' walls may touch, their contact model."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ class Solid:
 
     @property
     def block_points(self) -> np.ndarray:
-        """(E + Ec, 9) the points of every tangent block: the Bezier elements, then the contact blocks."""
+        """(E + Ec, 9) the points of every tangent block: the Bezier elements, then the contact
+        blocks."""
         blocks = self.mesh.elem_points.reshape(-1, 9)
         return np.concatenate([blocks, self.contact.block_points]) if self.contact else blocks

@@ -1,4 +1,5 @@
 """Encoders: task descriptor -> actuations, bounded by d_max * tanh."""
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -10,7 +11,9 @@ from ..registry import MODELS
 
 
 class Encoder(nn.Module):
-    """MLP with ReLU hidden layers; the output layer has no bias (authors' code) and is tanh-scaled."""
+    """MLP with ReLU hidden layers; the output layer has no bias (authors' code) and is
+    tanh-scaled."""
+
     hidden: Sequence[int]
     n_out: int
     d_max: float
@@ -22,7 +25,9 @@ class Encoder(nn.Module):
         h = t
         for width in self.hidden:
             h = nn.relu(nn.Dense(width, dtype=self.dtype, param_dtype=self.dtype)(h))
-        out = nn.Dense(self.n_out, use_bias=self.out_bias, dtype=self.dtype, param_dtype=self.dtype)(h)
+        out = nn.Dense(
+            self.n_out, use_bias=self.out_bias, dtype=self.dtype, param_dtype=self.dtype
+        )(h)
         return self.d_max * jnp.tanh(out)
 
 

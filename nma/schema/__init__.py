@@ -7,21 +7,71 @@ construction, so a config is checked the same way whether Hydra composes it or P
 
     Fidelity(5, 1)  ->  ConfigError: fidelity.quad_points must be an integer in [2, 10], got 1
 
-This package imports no JAX: the commands validate a composed config before any heavy import or work.
+This package imports no JAX: the commands validate a composed config before any heavy import or
+work.
 """
+
 from __future__ import annotations
 
 from .commands import EvaluateConfig, ExportConfig, OutputConfig, SimulateConfig, TrainConfig
 from .compose import build, check_keys, explain, register, scene_config, scene_from_config
 from ..settings import Schema, bounded, choice
-from .physics import ContactConfig, DynamicsConfig, Fidelity, MaterialConfig, PartConfig, SolverConfig
+from .physics import (
+    ContactConfig,
+    DynamicsConfig,
+    Fidelity,
+    MaterialConfig,
+    PartConfig,
+    SolverConfig,
+)
 from .scene import GroupConfig, SceneConfig, SupportConfig
-from ..tasks.schemas import (TASK_SCHEMAS, DigitalMNISTTask, RotationTask, ShapeMatchingTask, SpecTask, TaskConfig,
-                    TranslationTask, task_schema)
+from ..tasks.schemas import (
+    TASK_SCHEMAS,
+    DigitalMNISTTask,
+    RotationTask,
+    ShapeMatchingTask,
+    SpecTask,
+    TaskConfig,
+    TranslationTask,
+    task_schema,
+)
 from .training import LoggerConfig, LrScale, ModelConfig, OptimConfig, TrainerConfig
 
-__all__ = ["EvaluateConfig", "ExportConfig", "OutputConfig", "SimulateConfig", "TrainConfig", "build", "check_keys",
-           "explain", "register", "scene_config", "scene_from_config", "Schema", "bounded", "choice", "ContactConfig", "DynamicsConfig", "Fidelity", "MaterialConfig", "PartConfig",
-           "SolverConfig", "GroupConfig", "SceneConfig", "SupportConfig", "TASK_SCHEMAS", "DigitalMNISTTask",
-           "RotationTask", "ShapeMatchingTask", "SpecTask", "TaskConfig", "task_schema", "TranslationTask", "LoggerConfig", "LrScale",
-           "ModelConfig", "OptimConfig", "TrainerConfig"]
+__all__ = [
+    "EvaluateConfig",
+    "ExportConfig",
+    "OutputConfig",
+    "SimulateConfig",
+    "TrainConfig",
+    "build",
+    "check_keys",
+    "explain",
+    "register",
+    "scene_config",
+    "scene_from_config",
+    "Schema",
+    "bounded",
+    "choice",
+    "ContactConfig",
+    "DynamicsConfig",
+    "Fidelity",
+    "MaterialConfig",
+    "PartConfig",
+    "SolverConfig",
+    "GroupConfig",
+    "SceneConfig",
+    "SupportConfig",
+    "TASK_SCHEMAS",
+    "DigitalMNISTTask",
+    "RotationTask",
+    "ShapeMatchingTask",
+    "SpecTask",
+    "TaskConfig",
+    "task_schema",
+    "TranslationTask",
+    "LoggerConfig",
+    "LrScale",
+    "ModelConfig",
+    "OptimConfig",
+    "TrainerConfig",
+]

@@ -1,5 +1,6 @@
-"""Between the schemas and Hydra / OmegaConf: a checked instance from a mapping, unknown keys refused,
-OmegaConf's errors in one line, the schemas in Hydra's ConfigStore."""
+"""Between the schemas and Hydra / OmegaConf: a checked instance from a mapping, unknown keys
+refused, OmegaConf's errors in one line, the schemas in Hydra's ConfigStore."""
+
 from __future__ import annotations
 
 import re
@@ -38,7 +39,8 @@ def scene_config(cfg: Any) -> SceneConfig:
 
 
 def scene_from_config(cfg: Any) -> SceneSpec:
-    """The SceneSpec of a checked SceneConfig or of a mapping (checked here), cells top row first."""
+    """The SceneSpec of a checked SceneConfig or of a mapping (checked here), cells top row
+    first."""
     return scene_config(cfg).spec()
 
 
@@ -54,8 +56,10 @@ def check_keys(node, path: str = "") -> None:
             known = {f.name for f in dataclasses.fields(kind)}
             for key in node.keys():
                 if key not in known:
-                    raise ConfigError(f"{path + '.' if path else ''}{key} is not a known setting; "
-                                      f"{kind.__name__} has {sorted(known)}")
+                    raise ConfigError(
+                        f"{path + '.' if path else ''}{key} is not a known setting; "
+                        f"{kind.__name__} has {sorted(known)}"
+                    )
         for key in node.keys():
             if not OmegaConf.is_missing(node, key):
                 check_keys(node[key], f"{path + '.' if path else ''}{key}")
@@ -70,8 +74,11 @@ def explain(exc: BaseException, prefix: str = "") -> str:
     from omegaconf.errors import ConfigKeyError, MissingMandatoryValue, ValidationError
 
     cause = exc
-    # Hydra wraps the error of a config file it composes (e.g. one from --config-dir): find the field's
-    while (cause.__cause__ or cause.__context__) is not None and not getattr(cause, "full_key", None):
+    # Hydra wraps the error of a config file it composes (e.g. one from --config-dir): find the
+    # field's
+    while (cause.__cause__ or cause.__context__) is not None and not getattr(
+        cause, "full_key", None
+    ):
         cause = cause.__cause__ or cause.__context__
     where = re.match(r"In '([^']+)':", str(exc))
     if where and cause is not exc:
@@ -81,14 +88,22 @@ def explain(exc: BaseException, prefix: str = "") -> str:
     first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
     if isinstance(cause, MissingMandatoryValue):
         return f"{key} is required and has no value"
-    if isinstance(cause, ConfigKeyError) or "not in struct" in first or re.search(r"Key '.*' not in", first):
+    if (
+        isinstance(cause, ConfigKeyError)
+        or "not in struct" in first
+        or re.search(r"Key '.*' not in", first)
+    ):
         return f"{key} is not a known setting ({first})"
     if isinstance(cause, ValidationError):
         m = re.match(r"Value '(.*)' of type '(\w+)' could not be converted to (\w+)", first)
         if "is not a ListConfig" in first:
             return f"{key} must be a list such as [1.0, 2.0], got a single {first.split()[3]}"
         if m:
-            return f"{key} must be {_kind({'Integer': int, 'Float': float, 'Boolean': bool}.get(m[3], m[3]))}, got {m[1]!r}"
+            return (
+                f"{key} must be "
+                f"{_kind({'Integer': int, 'Float': float, 'Boolean': bool}.get(m[3], m[3]))}, "
+                f"got {m[1]!r}"
+            )
         return f"{key}: {first}"
     return first if not key else f"{key}: {first}"
 
@@ -108,4 +123,8 @@ def register() -> None:
     cs.store(name="fit_schema", node=FitConfig)
     for name, schema in TASK_SCHEMAS.items():
         # a spec task has no defaults to build an instance from: its class is the node
-        cs.store(group="task", name=f"{name}_schema", node=schema if name == "spec" else schema(name=name))
+        cs.store(
+            group="task",
+            name=f"{name}_schema",
+            node=schema if name == "spec" else schema(name=name),
+        )

@@ -9,6 +9,7 @@ these on the settings a user gave (nma.run and nma.export: from their validation
 fill anything in; nma.simulate and nma.fit: on construction of their configs); a trained run's
 saved config is not checked again when nma.evaluate or nma.export reads it.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,8 +26,11 @@ _SCHEMES = "dynamics=newmark or dynamics=generalised_alpha"
 def given(schema, name: str) -> bool:
     """Whether the field `name` of a schema instance differs from its declared default."""
     f = next(f for f in fields(schema) if f.name == name)
-    default = f.default if f.default is not MISSING else (
-        f.default_factory() if f.default_factory is not MISSING else MISSING)
+    default = (
+        f.default
+        if f.default is not MISSING
+        else (f.default_factory() if f.default_factory is not MISSING else MISSING)
+    )
     return default is MISSING or getattr(schema, name) != default
 
 
@@ -37,12 +41,12 @@ def _unused(schema, prefix: str, names, why: str) -> Unused:
 
 
 def _contact_off(s) -> str | None:
-    """Why contact is off for these settings (contact=auto decided by resolve_auto), or None where
-    it is on."""
-    from .physics import auto_contact
+    """Why contact is off for these settings (contact=auto decided as nma.resolve decides it, by
+    the material's model), or None where it is on."""
+    from .physics import material_model
 
     if s.contact.enabled is None:
-        if not auto_contact(s):
+        if not material_model(s.material.nu).contact_on(s.scene):
             return f"contact is off (contact=auto, and scene {s.scene.name} leaves it off)"
         return None
     enabled = s.contact.enabled
@@ -53,54 +57,102 @@ def _physics(s, command: str) -> Unused:
     """The groups nma.run and nma.simulate share: contact, dynamics, part."""
     off = _contact_off(s)
     if off:
-        yield from _unused(s.contact, "contact", [f.name for f in fields(ContactSettings)],
-                           f"{off}; contact=on turns it on")
+        yield from _unused(
+            s.contact,
+            "contact",
+            [f.name for f in fields(ContactSettings)],
+            f"{off}; contact=on turns it on",
+        )
     d = s.dynamics
     if not d.enabled:
         static = hasattr(s, "task") and not getattr(s.task, "in_time", False)
-        why = (f"task {s.task.factory} is static, and dynamics is off; the tasks in time are in "
-               "docs/reference/tasks.md" if static else
-               f"dynamics is off (dynamics.scheme=off): choose {_SCHEMES}")
+        why = (
+            f"task {s.task.factory} is static, and dynamics is off; the tasks in time are in "
+            "docs/reference/tasks.md"
+            if static
+            else f"dynamics is off (dynamics.scheme=off): choose {_SCHEMES}"
+        )
         yield from _unused(d, "dynamics", [f.name for f in fields(d) if f.name != "scheme"], why)
     else:
         if d.scheme == "newmark":
-            yield from _unused(d, "dynamics", ["rho_inf"], "it is generalised_alpha's spectral "
-                               "radius (newmark damps no frequency): choose "
-                               "dynamics=generalised_alpha")
+            yield from _unused(
+                d,
+                "dynamics",
+                ["rho_inf"],
+                "it is generalised_alpha's spectral "
+                "radius (newmark damps no frequency): choose "
+                "dynamics=generalised_alpha",
+            )
         if d.damping_ratio is None:
-            yield from _unused(d, "dynamics", ["damping_frequency"], "it is where "
-                               "dynamics.damping_ratio holds: give dynamics.damping_ratio too")
+            yield from _unused(
+                d,
+                "dynamics",
+                ["damping_frequency"],
+                "it is where dynamics.damping_ratio holds: give dynamics.damping_ratio too",
+            )
         if command == "nma.run":
-            yield from _unused(d, "dynamics", ["ramp"], "it is nma.simulate's rise time; a task in "
-                               "time rises over task.ramp_steps")
+            yield from _unused(
+                d,
+                "dynamics",
+                ["ramp"],
+                "it is nma.simulate's rise time; a task in time rises over task.ramp_steps",
+            )
     if s.part.scale is None:
-        yield from _unused(s.part, "part", ["thickness"], "forces stay per unit thickness "
-                           "without part.scale, the millimetres per length unit of the scene: give "
-                           "part.scale too")
+        yield from _unused(
+            s.part,
+            "part",
+            ["thickness"],
+            "forces stay per unit thickness "
+            "without part.scale, the millimetres per length unit of the scene: give "
+            "part.scale too",
+        )
 
 
 def _training(s) -> Unused:
     t = s.trainer
     if t.min_feature is None:
-        yield from _unused(t, "trainer", ["feature_penalty"], "it weighs the trainer.min_feature "
-                           "bound: give trainer.min_feature (mm) too")
+        yield from _unused(
+            t,
+            "trainer",
+            ["feature_penalty"],
+            "it weighs the trainer.min_feature bound: give trainer.min_feature (mm) too",
+        )
     if t.inversion_penalty == 0:
-        yield from _unused(t, "trainer", ["inversion_margin"], "it is where the inversion penalty "
-                           "acts, and trainer.inversion_penalty=0 turns that off")
+        yield from _unused(
+            t,
+            "trainer",
+            ["inversion_margin"],
+            "it is where the inversion penalty "
+            "acts, and trainer.inversion_penalty=0 turns that off",
+        )
     if t.fields == "none":
-        yield from _unused(t, "trainer", ["fields_samples"], "trainer.fields=none writes no "
-                           "fields: choose trainer.fields=final or all")
+        yield from _unused(
+            t,
+            "trainer",
+            ["fields_samples"],
+            "trainer.fields=none writes no fields: choose trainer.fields=final or all",
+        )
     if s.optim.schedule == "constant":
-        yield from _unused(s.optim, "optim", ["final_fraction"], "it is the cosine schedule's last "
-                           "rate: choose optim.schedule=cosine")
+        yield from _unused(
+            s.optim,
+            "optim",
+            ["final_fraction"],
+            "it is the cosine schedule's last rate: choose optim.schedule=cosine",
+        )
     if s.logger.name == "none":
-        yield from _unused(s.logger, "logger", ["mode", "project"], "logger=none logs nothing: "
-                           "choose logger=wandb")
+        yield from _unused(
+            s.logger, "logger", ["mode", "project"], "logger=none logs nothing: choose logger=wandb"
+        )
     task = s.task
     if hasattr(task, "eval_points") and getattr(task, "low", None) is None:
-        yield from _unused(task, "task", ["eval_points"], "it spaces the evaluation over a box "
-                           "(task.low, task.high); named cases and a dataset are evaluated as "
-                           "they are")
+        yield from _unused(
+            task,
+            "task",
+            ["eval_points"],
+            "it spaces the evaluation over a box "
+            "(task.low, task.high); named cases and a dataset are evaluated as "
+            "they are",
+        )
 
 
 def _refuse(found: Unused) -> None:
@@ -124,18 +176,33 @@ def check_simulate(s) -> None:
 def check_export(s) -> None:
     """nma.export's settings (an ExportConfig, its format decided): every setting takes effect."""
     if not s.load_cases:
-        _refuse(_unused(s, "", ["load_fraction"], "it sizes the load cases: give load_cases=true "
-                                                  "too"))
+        _refuse(
+            _unused(s, "", ["load_fraction"], "it sizes the load cases: give load_cases=true too")
+        )
     if s.format != "stl" and not s.load_cases:
-        _refuse(_unused(s, "", ["thickness"], "it is the STL's extrusion height and the load "
-                        f"cases' thickness; format={s.format} with load_cases=false uses neither"))
+        _refuse(
+            _unused(
+                s,
+                "",
+                ["thickness"],
+                "it is the STL's extrusion height and the load "
+                f"cases' thickness; format={s.format} with load_cases=false uses neither",
+            )
+        )
 
 
 def check_fit(s) -> None:
     """nma.fit's settings (a FitConfig): a number of terms only for the law that has terms."""
     if s.law != "ogden":
-        _refuse(_unused(s, "", ["terms"], f"it is Ogden's number of terms, and law {s.law} has a "
-                        "fixed set of parameters: choose law=ogden, or leave terms out"))
+        _refuse(
+            _unused(
+                s,
+                "",
+                ["terms"],
+                f"it is Ogden's number of terms, and law {s.law} has a "
+                "fixed set of parameters: choose law=ogden, or leave terms out",
+            )
+        )
 
 
 def ligament_bound(scene) -> tuple[float, str] | None:
@@ -172,8 +239,10 @@ def ligament_bound(scene) -> tuple[float, str] | None:
                 if there is None or (there == "." and not scene.central_pore):
                     found = ((1 - lo) * h, "a pore's wall to the outer boundary")
                 elif there == "P":
-                    found = ((1 - lo) * (h + half(i + di, j + dj, axis)),
-                             "the wall between two neighbouring pores")
+                    found = (
+                        (1 - lo) * (h + half(i + di, j + dj, axis)),
+                        "the wall between two neighbouring pores",
+                    )
                 else:
                     continue  # a solid cell, or the central pore's patches: no bound from this side
                 best = found if best is None or found[0] < best[0] else best
@@ -189,16 +258,20 @@ def check_min_feature(s) -> None:
     if bound_mm is None or scale is None:
         return
     if not scene.central_pore and not any(c in "P." for r in scene.rows() for c in r):
-        raise ConfigError(f"trainer.min_feature={bound_mm:g} mm has no effect: scene {scene.name} "
-                          "has no pores, so no ligament for it to bound")
+        raise ConfigError(
+            f"trainer.min_feature={bound_mm:g} mm has no effect: scene {scene.name} "
+            "has no pores, so no ligament for it to bound"
+        )
     found = ligament_bound(scene)
     if found is None or bound_mm <= found[0] * scale:
         return
     width, what = found
-    moved = (f", corners moved up to scene.corner_box={scene.corner_box:g}" if scene.corner_box
-             else "")
+    moved = (
+        f", corners moved up to scene.corner_box={scene.corner_box:g}" if scene.corner_box else ""
+    )
     raise ConfigError(
         f"trainer.min_feature={bound_mm:g} mm cannot be met by any design of scene {scene.name}: "
         f"its narrowest ligament is at most {width * scale:.4g} mm ({width:.4g} units at "
         f"part.scale={scale:g}: {what} at the smallest radius scene.radii_bounds[0]="
-        f"{scene.radii_bounds[0]:g}{moved}); lower trainer.min_feature, or raise part.scale")
+        f"{scene.radii_bounds[0]:g}{moved}); lower trainer.min_feature, or raise part.scale"
+    )

@@ -2,14 +2,15 @@
 `search` (how far along the step to go, and whether to take it), `cut` (whether the load step has
 failed) and `next_shift` (the diagonal shift of the next step's matrix, K + shift I).  The loop
 (nma.solver.newton.advance) calls them by name, solver.corrector; a new one registers in
-nma.registry.CORRECTORS and needs no edit of the loop.  In a time step (nma.dynamics) `search` is also
-given `noise`, the energy's round-off, to widen its acceptance test by.
+nma.registry.CORRECTORS and needs no edit of the loop.  In a time step (nma.dynamics) `search` is
+also given `noise`, the energy's round-off, to widen its acceptance test by.
 
 line_search: the Newton step, shortened as a whole until the energy falls enough (backtracking
-Armijo), a non-descent direction retried with a larger shift.  trust_region: the step of K + shift I,
-taken or rejected by how well the energy's quadratic model predicted its fall, the shift adapted
+Armijo), a non-descent direction retried with a larger shift.  trust_region: the step of K + shift
+I, taken or rejected by how well the energy's quadratic model predicted its fall, the shift adapted
 (Levenberg-Marquardt): a soft mode's part of the step is damped while the stiff part keeps Newton's.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -21,15 +22,18 @@ from .equations import State
 from .loading import finishing
 from .options import NewtonOptions
 
-TRUST_ACCEPT, TRUST_POOR, TRUST_GOOD = 0.1, 0.25, 0.75  # actual over predicted fall: taken, shift raised, lowered
-TRUST_REJECTIONS = 10  # rejected trust-region steps in a row that cut the load step (the shift grew 4^10-fold)
+# actual over predicted fall: taken, shift raised, lowered
+TRUST_ACCEPT, TRUST_POOR, TRUST_GOOD = 0.1, 0.25, 0.75
+# rejected trust-region steps in a row that cut the load step (the shift grew 4^10-fold)
+TRUST_REJECTIONS = 10
 
 
 class Trial(NamedTuple):
-    """One step as the loop tried it: du the solution of (K + shift I) du = rhs, `step` the direction
-    taken (-du where du climbs), its slope g.step and how far it went (a), whether it was taken (ok),
-    and what the search found: the energy's fall against its model's (agreement) and the curvature
-    step^T K step (the model's; 0 where the corrector has none)."""
+    """One step as the loop tried it: du the solution of (K + shift I) du = rhs, `step` the
+    direction taken (-du where du climbs), its slope g.step and how far it went (a), whether it was
+    taken (ok), and what the search found: the energy's fall against its model's (agreement) and the
+    curvature step^T K step (the model's; 0 where the corrector has none)."""
+
     du: jnp.ndarray
     step: jnp.ndarray
     slope: jnp.ndarray
@@ -46,8 +50,9 @@ class LineSearch:
     """The Newton step, shortened as a whole until the energy falls enough."""
 
     def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None):
-        """How far along `step` (slope < 0, at most a0) and whether to take it: (a, ok, agreement, curvature).
-        `noise`: the energy's round-off where it is known to exceed 1e-12 |E0| (a time step's)."""
+        """How far along `step` (slope < 0, at most a0) and whether to take it: (a, ok, agreement,
+        curvature). `noise`: the energy's round-off where it is known to exceed 1e-12 |E0| (a time
+        step's)."""
         curvature = jnp.zeros_like(slope)
         a, ok = _line_search(energy, opts, u, step, E0, slope, a0, noise)
         return a, ok, jnp.ones_like(slope), curvature
@@ -73,8 +78,17 @@ class TrustRegion:
         return _cut_trust_region(s, opts, t.ok)
 
     def next_shift(self, s: State, t: Trial, cut):
-        return _next_trust_shift(s, _retry_shift(s, t.du, t.slope, t.finite), t.step, t.curvature, t.a, t.ok,
-                                 t.descent, t.agreement, cut)
+        return _next_trust_shift(
+            s,
+            _retry_shift(s, t.du, t.slope, t.finite),
+            t.step,
+            t.curvature,
+            t.a,
+            t.ok,
+            t.descent,
+            t.agreement,
+            cut,
+        )
 
 
 def _slack(E0, noise):
@@ -84,8 +98,8 @@ def _slack(E0, noise):
 
 
 def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=None):
-    """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy): the step and
-    whether it was found."""
+    """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy): the step
+    and whether it was found."""
     slack = _slack(E0, noise)
 
     def ok(a, Ea):
@@ -105,43 +119,48 @@ def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=No
 
 
 def _trust_region(energy, u, step, E0, slope, curvature, a, noise=None):
-    """The trust-region test of a corrector step a * step (its slope and curvature along `step`): the
-    energy's actual fall against the fall its quadratic model predicts.  Returns (a, accepted, ratio).
-    Near equilibrium both are round-off, and a step that does not raise the energy beyond it is taken."""
+    """The trust-region test of a corrector step a * step (its slope and curvature along `step`):
+    the energy's actual fall against the fall its quadratic model predicts.  Returns (a, accepted,
+    ratio). Near equilibrium both are round-off, and a step that does not raise the energy beyond it
+    is taken."""
     slack = _slack(E0, noise)
     predicted = -(a * slope + 0.5 * a * a * curvature)
     Ea = energy(u + a * step)
     ratio = (E0 - Ea) / jnp.maximum(predicted, slack)
     roundoff = jnp.abs(predicted) <= slack
     ok = jnp.isfinite(Ea) & (a > 0) & ((ratio >= TRUST_ACCEPT) | (roundoff & (Ea <= E0 + slack)))
-    # a step taken on the round-off test agreed with the model as far as the energy can tell: its ratio
-    # is noise, and read as poor it would raise the shift just before convergence
+    # a step taken on the round-off test agreed with the model as far as the energy can tell: its
+    # ratio is noise, and read as poor it would raise the shift just before convergence
     return a, ok, jnp.where(roundoff & ok, 1.0, jnp.where(jnp.isfinite(ratio), ratio, -jnp.inf))
 
 
 def _cut_trust_region(s: State, opts: NewtonOptions, ok):
-    """As _cut, for the trust-region corrector: a rejected step is not a failure (the shift grows and
-    the step is solved again), but TRUST_REJECTIONS of them in a row cut the load step.  Poor steps
-    that are taken do not count: cutting after a few of them (as the line search's damped steps do)
-    throws away the slow descent a nearly incompressible material needs."""
+    """As _cut, for the trust-region corrector: a rejected step is not a failure (the shift grows
+    and the step is solved again), but TRUST_REJECTIONS of them in a row cut the load step.  Poor
+    steps that are taken do not count: cutting after a few of them (as the line search's damped
+    steps do) throws away the slow descent a nearly incompressible material needs."""
     step_it = jnp.where(s.predictor, 0, s.step_it + 1)
     rejected = jnp.where(s.predictor | ok, 0, s.damped + 1)
-    # a predictor that a bound (J > 0, the walls) cut below min_increment: the load step is cut, as the
-    # line search's is, else the next corrector closes it at once and the same predictor is tried again
-    cut = ((s.predictor & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing(s, opts, step_it))
-           | (rejected >= TRUST_REJECTIONS))
+    # a predictor that a bound (J > 0, the walls) cut below min_increment: the load step is cut, as
+    # the line search's is, else the next corrector closes it at once and the same predictor is
+    # tried again
+    cut = (
+        (s.predictor & ~ok)
+        | ((step_it >= opts.max_step_iters) & ~finishing(s, opts, step_it))
+        | (rejected >= TRUST_REJECTIONS)
+    )
     return step_it, rejected, cut
 
 
 def _next_trust_shift(s: State, retry, step, curvature, a, ok, descent, agreement, cut):
-    """The trust region's diagonal shift (the inverse of its radius, as in Levenberg-Marquardt): raised
-    where the model predicted the step badly, the J > 0 bound cut it short or it was rejected, lowered
-    fourfold where the full step agreed with the model; kept through a predictor (the soft mode that
-    called for it is still there in the next load step), and after a cut the last one that was taken.
-    A raise goes to at least the stiffness along the step (its Rayleigh quotient): where one soft mode
-    dominates the step, that halves its part and leaves the stiff part.  After a direction that did not
-    descend (K + shift I is indefinite) the shift is at least _retry_shift's, sized from the curvature
-    it revealed."""
+    """The trust region's diagonal shift (the inverse of its radius, as in Levenberg-Marquardt):
+    raised where the model predicted the step badly, the J > 0 bound cut it short or it was
+    rejected, lowered fourfold where the full step agreed with the model; kept through a predictor
+    (the soft mode that called for it is still there in the next load step), and after a cut the
+    last one that was taken. A raise goes to at least the stiffness along the step (its Rayleigh
+    quotient): where one soft mode dominates the step, that halves its part and leaves the stiff
+    part.  After a direction that did not descend (K + shift I is indefinite) the shift is at least
+    _retry_shift's, sized from the curvature it revealed."""
     dd = jnp.dot(step, step)
     along = jnp.where(dd > 0, jnp.abs(curvature) / jnp.where(dd > 0, dd, 1.0), 0.0)
     raised = jnp.maximum(jnp.maximum(4.0 * s.shift, along), 1e-8 * s.k_ref)
@@ -154,33 +173,47 @@ def _next_trust_shift(s: State, retry, step, curvature, a, ok, descent, agreemen
 
 
 def _cut(s: State, opts: NewtonOptions, a, ok, flipped, descent):
-    """Whether the load step fails at this iteration (it returns to the last converged state with half
-    the increment), with the step's iteration count and its run of damped corrector steps."""
+    """Whether the load step fails at this iteration (it returns to the last converged state with
+    half the increment), with the step's iteration count and its run of damped corrector steps."""
     predictor = s.predictor
     step_it = jnp.where(predictor, 0, s.step_it + 1)
     # corrector steps that the line search or the J > 0 bound keep cutting short, several in a row,
-    # mean the increment is too large for Newton's model: cut it now rather than after max_step_iters
-    damped = jnp.where(predictor | ~ok, 0, jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)))
+    # mean the increment is too large for Newton's model: cut it now rather than after
+    # max_step_iters
+    damped = jnp.where(
+        predictor | ~ok,
+        0,
+        jnp.where(flipped, s.damped, jnp.where(a < opts.damped_step, s.damped + 1, 0)),
+    )
     # a non-descent direction is retried with a larger diagonal shift first (no cut)
-    # ...and a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a few iterations
-    # from converging (the residual need not fall monotonically there): it gets them
-    cut = (descent & ~ok) | ((step_it >= opts.max_step_iters) & ~finishing(s, opts, step_it)) | (damped >= opts.max_damped_steps)
+    # ...and a step whose residual is, or just was, within FINISHING_RESIDUAL x the tolerance is a
+    # few iterations from converging (the residual need not fall monotonically there): it gets them
+    cut = (
+        (descent & ~ok)
+        | ((step_it >= opts.max_step_iters) & ~finishing(s, opts, step_it))
+        | (damped >= opts.max_damped_steps)
+    )
     return step_it, damped, cut
 
 
 def _retry_shift(s: State, du, slope, finite):
     """The shift after a direction du that did not descend (slope = g.du >= 0)."""
-    # (K + shift) du = -g with slope = g.du >= 0: du^T K du / du^T du = -slope / |du|^2 - shift < 0 bounds
-    # the lowest eigenvalue of K from above; the retry's shift must at least exceed it
+    # (K + shift) du = -g with slope = g.du >= 0: du^T K du / du^T du = -slope / |du|^2 - shift < 0
+    # bounds the lowest eigenvalue of K from above; the retry's shift must at least exceed it
     dd = jnp.dot(du, du)
     rayleigh = jnp.where(finite & (dd > 0), -slope / jnp.where(dd > 0, dd, 1.0) - s.shift, 0.0)
-    return jnp.maximum(jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref))
+    return jnp.maximum(
+        jnp.maximum(10.0 * s.shift, -2.0 * rayleigh), jnp.maximum(s.shift_memory, 1e-8 * s.k_ref)
+    )
 
 
 def _next_shift(s: State, du, slope, finite, descent, cut):
     """The diagonal shift of the next iteration, and the last one that gave a descent direction."""
     retry = _retry_shift(s, du, slope, finite)
-    shift_new = jnp.where(cut, 0.0, jnp.where(
-        ~descent, retry, jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)))
+    shift_new = jnp.where(
+        cut,
+        0.0,
+        jnp.where(~descent, retry, jnp.where(s.shift > 1e-12 * s.k_ref, 0.1 * s.shift, 0.0)),
+    )
     shift_memory = jnp.where(descent & ~s.predictor & (s.shift > 0), s.shift, s.shift_memory)
     return shift_new, shift_memory

@@ -1,6 +1,8 @@
-"""The discrete equilibrium equations of one scene (Equations: potential, residual, tangents and their
-blocks; at a state, its energy, tangents and the adjoint's pullback), one solve's data (Problem:
-quadrature, boundary path, material, and in a time step its Inertia) and Newton's iterate (State)."""
+"""The discrete equilibrium equations of one scene (Equations: potential, residual, tangents and
+their blocks; at a state, its energy, tangents and the adjoint's pullback), one solve's data
+(Problem: quadrature, boundary path, material, and in a time step its Inertia) and Newton's iterate
+(State)."""
+
 from __future__ import annotations
 
 import copy
@@ -9,25 +11,36 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..geometry.discretise import Discretisation
-from ..mechanics.energy import Quadrature, Tangents, energy_force_tangents, quadrature, strain_energy
+from ..discretise import Discretisation
+from ..mechanics.energy import (
+    Quadrature,
+    Tangents,
+    energy_force_tangents,
+    quadrature,
+    strain_energy,
+)
 from .assembly import element_dofs
 
 
 class Inertia(NamedTuple):
-    """The quadratic term an implicit time step adds to the potential, 1/2 u.B u - b.u over every dof:
-    B the step's inertia and damping (element blocks on the tangent's pattern, (E, 18, 18)), b what the
-    previous state leaves (nma.dynamics.schemes).  Its Hessian B joins the element tangents, so every
-    safeguard of the static Newton (step bounds, line search, load-step cuts) serves a time step as is."""
+    """The quadratic term an implicit time step adds to the potential, 1/2 u.B u - b.u over every
+    dof: B the step's inertia and damping (element blocks on the tangent's pattern, (E, 18, 18)), b
+    what the previous state leaves (nma.dynamics.schemes).  Its Hessian B joins the element
+    tangents, so every safeguard of the static Newton (step bounds, line search, load-step cuts)
+    serves a time step as is."""
+
     blocks: jnp.ndarray  # (E, 18, 18)
-    b: jnp.ndarray       # (2 n_points,)
+    b: jnp.ndarray  # (2 n_points,)
 
     def energy(self, edofs, u):
         ue = u[edofs]
         return 0.5 * jnp.einsum("ea,eab,eb->", ue, self.blocks, ue) - jnp.dot(self.b, u)
 
     def force(self, edofs, u):
-        return jnp.zeros_like(u).at[edofs].add(jnp.einsum("eab,eb->ea", self.blocks, u[edofs])) - self.b
+        return (
+            jnp.zeros_like(u).at[edofs].add(jnp.einsum("eab,eb->ea", self.blocks, u[edofs]))
+            - self.b
+        )
 
 
 class Equations:
@@ -57,36 +70,43 @@ class Equations:
         return u.at[self.free].set(u_free).at[self.dirichlet].set(u_dir).reshape(-1, 2)
 
     def potential(self, quad, u_free, u_dir, load, mat, inertia: Inertia | None = None):
-        """Strain energy less the work of the dead load at load factor `load` (a time step's: plus its
-        inertia term)."""
+        """Strain energy less the work of the dead load at load factor `load` (a time step's: plus
+        its inertia term)."""
         u = self.full(u_free, u_dir)
-        potential = strain_energy(self.solid, quad, u, mat) - load * jnp.dot(self.f_ext, u.reshape(-1))
+        potential = strain_energy(self.solid, quad, u, mat) - load * jnp.dot(
+            self.f_ext, u.reshape(-1)
+        )
         if inertia is not None:
-            potential = potential + inertia.energy(self.edofs[:self.elements], u.reshape(-1))
+            potential = potential + inertia.energy(self.edofs[: self.elements], u.reshape(-1))
         return potential
 
     def residual(self, quad, u_free, u_dir, load, mat, inertia: Inertia | None = None):
         return jax.grad(self.potential, argnums=1)(quad, u_free, u_dir, load, mat, inertia)
 
-    def linearise(self, quad, u_free, u_dir, load, mat, contact_normal=False, inertia: Inertia | None = None):
-        """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks of
-        its normal stiffness only, nma.mechanics.contact.force_and_blocks; a time step's `inertia`)."""
+    def linearise(
+        self, quad, u_free, u_dir, load, mat, contact_normal=False, inertia: Inertia | None = None
+    ):
+        """Potential, free residual g_f and Tangents at a state (`contact_normal`: contact's blocks
+        of its normal stiffness only, nma.mechanics.contact.force_and_blocks; a time step's
+        `inertia`)."""
         u = self.full(u_free, u_dir)
-        energy, force, kel = energy_force_tangents(self.solid, quad, u, mat, contact_normal, self.contact_slots)
+        energy, force, kel = energy_force_tangents(
+            self.solid, quad, u, mat, contact_normal, self.contact_slots
+        )
         potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
         force = force.reshape(-1)
         if inertia is not None:
-            edofs = self.edofs[:self.elements]
+            edofs = self.edofs[: self.elements]
             potential = potential + inertia.energy(edofs, u.reshape(-1))
             force = force + inertia.force(edofs, u.reshape(-1))
             kel = kel._replace(elements=kel.elements + inertia.blocks)
         return potential, force[self.free] - load * self.f_free, kel
 
     def blocks(self, kel: Tangents):
-        """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty slot's
-        block is zero)."""
+        """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty
+        slot's block is zero)."""
         contact = self.edofs[self.elements + jnp.maximum(kel.which, 0)]
-        return (self.edofs[:self.elements], kel.elements), (contact, kel.contact)
+        return (self.edofs[: self.elements], kel.elements), (contact, kel.contact)
 
     def curvature(self, kel: Tangents, v_free):
         """v^T K_ff v: the energy's second derivative along the free-dof direction v."""
@@ -94,7 +114,8 @@ class Equations:
         return sum(jnp.einsum("ea,eab,eb->", v[dofs], K, v[dofs]) for dofs, K in self.blocks(kel))
 
     def coupling(self, kel: Tangents, u_D):
-        """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free dofs."""
+        """K_fD u_D: the free force produced by moving the Dirichlet dofs by u_D, at fixed free
+        dofs."""
         v = jnp.zeros(2 * self.solid.mesh.n_points, kel.elements.dtype).at[self.dirichlet].set(u_D)
         f = jnp.zeros_like(v)
         for dofs, K in self.blocks(kel):
@@ -109,12 +130,18 @@ def energy_at(eqs: Equations, X, d, mat, u_free):
 
 def tangents_at(eqs: Equations, X, d, mat, u_free):
     """The Tangents at a converged state (the adjoint's matrix)."""
-    return energy_force_tangents(eqs.solid, quadrature(eqs.solid, X), eqs.full(u_free, eqs.A @ d), mat,
-                                 capacity=eqs.contact_slots)[2]
+    return energy_force_tangents(
+        eqs.solid,
+        quadrature(eqs.solid, X),
+        eqs.full(u_free, eqs.A @ d),
+        mat,
+        capacity=eqs.contact_slots,
+    )[2]
 
 
 def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
     """(X, d, mat)_bar = -adjoint^T dR_f/d(X, d, mat) at fixed free displacements."""
+
     def residual(X, d, mat):
         return eqs.residual(quadrature(eqs.solid, X), u_free, eqs.A @ d, 1.0, mat)
 
@@ -122,10 +149,12 @@ def pullback(eqs: Equations, X, d, mat, u_free, adjoint):
 
 
 class Problem(NamedTuple):
-    """What one solve needs besides the state: the design's quadrature, the boundary data, the material.
-    The load path runs from the start (load factor 0) to the target (1): the prescribed displacements
-    from u_D0 to u_D and the dead load's factor from load0 to 1.  A cold solve starts at rest (u_D0 = 0,
-    load0 = 0); a warm one at another sample's equilibrium (its u_D0, the full dead load)."""
+    """What one solve needs besides the state: the design's quadrature, the boundary data, the
+    material. The load path runs from the start (load factor 0) to the target (1): the prescribed
+    displacements from u_D0 to u_D and the dead load's factor from load0 to 1.  A cold solve starts
+    at rest (u_D0 = 0, load0 = 0); a warm one at another sample's equilibrium (its u_D0, the full
+    dead load)."""
+
     quad: Quadrature
     u_D: jnp.ndarray
     mat: jnp.ndarray
@@ -142,24 +171,30 @@ class Problem(NamedTuple):
 
 
 class State(NamedTuple):
-    """Newton's iterate and its bookkeeping, through the load steps (built by keyword: newton.setup)."""
-    u: jnp.ndarray          # the free dofs' displacement
-    lam: jnp.ndarray        # the load factor, 0 at the start of the path and 1 at its end
-    u_conv: jnp.ndarray     # the last converged load step's u and lam: where a cut returns to
+    """Newton's iterate and its bookkeeping, through the load steps (built by keyword:
+    starts.setup)."""
+
+    u: jnp.ndarray  # the free dofs' displacement
+    lam: jnp.ndarray  # the load factor, 0 at the start of the path and 1 at its end
+    u_conv: jnp.ndarray  # the last converged load step's u and lam: where a cut returns to
     lam_conv: jnp.ndarray
-    dlam: jnp.ndarray       # the load increment
-    predictor: jnp.ndarray  # the next step is a load step's predictor (else a corrector at fixed load)
-    shift: jnp.ndarray      # the diagonal shift of the next step's matrix, K + shift I
-    it: jnp.ndarray         # iterations so far
-    step_it: jnp.ndarray    # corrector iterations in this load step
-    steps: jnp.ndarray      # converged load steps
-    cuts: jnp.ndarray       # failed load steps (each halved its increment)
-    status: jnp.ndarray     # a nma.solver.status.Status
-    tol: jnp.ndarray        # the residual that converges the solve (0 until the scales are known)
-    k_ref: jnp.ndarray      # the stiffness scale (the largest diagonal entry at rest)
-    rnorm: jnp.ndarray      # ||g_f|| at the last linearisation
-    history: jnp.ndarray    # rnorm per iteration, nan past the last
-    damped: jnp.ndarray   # heavily damped corrector steps (trust region: rejected steps) in a row in this load step
+    dlam: jnp.ndarray  # the load increment
+    # the next step is a load step's predictor (else a corrector at fixed load)
+    predictor: jnp.ndarray
+    shift: jnp.ndarray  # the diagonal shift of the next step's matrix, K + shift I
+    it: jnp.ndarray  # iterations so far
+    step_it: jnp.ndarray  # corrector iterations in this load step
+    steps: jnp.ndarray  # converged load steps
+    cuts: jnp.ndarray  # failed load steps (each halved its increment)
+    status: jnp.ndarray  # a nma.solver.status.Status
+    tol: jnp.ndarray  # the residual that converges the solve (0 until the scales are known)
+    k_ref: jnp.ndarray  # the stiffness scale (the largest diagonal entry at rest)
+    rnorm: jnp.ndarray  # ||g_f|| at the last linearisation
+    history: jnp.ndarray  # rnorm per iteration, nan past the last
+    # heavily damped corrector steps (trust region: rejected steps) in a row in this load step
+    damped: jnp.ndarray
     shift_memory: jnp.ndarray  # the last diagonal shift that gave a descent direction in this solve
-    f_ref: jnp.ndarray    # the force scale of the full load (the tolerance is rtol times it, plus atol's)
-    inverting: jnp.ndarray  # since the last converged load step, a step was stopped short by the check points
+    # the force scale of the full load (the tolerance is rtol times it, plus atol's)
+    f_ref: jnp.ndarray
+    # since the last converged load step, a step was stopped short by the check points
+    inverting: jnp.ndarray

@@ -1,8 +1,9 @@
 """Newton driven from Python around jitted halves of an iteration (host linear backends: SuperLU,
-PARDISO): the compiled kernels hold no host callback (they go to JAX's persistent compilation cache).
-One sample at a time here; nma.solver.batch runs a batch's samples on a thread pool.  A batch's cold
-solves of one design share their first iteration, the tangent at rest and its factor (AtRest): it does
-not depend on the actuation."""
+PARDISO): the compiled kernels hold no host callback (they go to JAX's persistent compilation
+cache). One sample at a time here; nma.solver.batch runs a batch's samples on a thread pool.  A
+batch's cold solves of one design share their first iteration, the tangent at rest and its factor
+(AtRest): it does not depend on the actuation."""
+
 from __future__ import annotations
 
 import threading
@@ -14,20 +15,23 @@ import numpy as np
 
 from . import saddles
 from .equations import Equations, energy_at, pullback, tangents_at
-from .newton import advance, continue_in_time, hold, leave_saddle, linearise, result, setup
+from .newton import advance, hold, leave_saddle, linearise, result
 from .options import NewtonOptions
+from .starts import continue_in_time, setup
 from .status import Status
 from .warm import Audit, Start, WarmStarts
 
-CONTACT_SLOTS = 512  # contact blocks a solve's linearisations have room for at first (the near ones of the
-                     # scenes' largest actuations); more near: 4x as many (kernels compiled once per room)
+# contact blocks a solve's linearisations have room for at first (the near ones of the
+CONTACT_SLOTS = 512
+# scenes' largest actuations); more near: 4x as many (kernels compiled once per room)
 
 
 class AtRest:
-    """A design's linearisation at rest, shared by a batch's solves of that design.  Every cold solve
-    begins by linearising at rest and factorising that tangent, which depend on the design only (not on
-    the actuation), so a batch does both once per design; a warm solve's tolerance comes from the same
-    tangent.  The factor is one solver handle, so its back-substitutions take turns."""
+    """A design's linearisation at rest, shared by a batch's solves of that design.  Every cold
+    solve begins by linearising at rest and factorising that tangent, which depend on the design
+    only (not on the actuation), so a batch does both once per design; a warm solve's tolerance
+    comes from the same tangent.  The factor is one solver handle, so its back-substitutions take
+    turns."""
 
     def __init__(self, backend, lin, factorise: bool):
         self.parts = (lin.energy, lin.g, lin.kel)  # potential, free residual, element tangents
@@ -56,9 +60,9 @@ class AtRest:
 
 
 class Kernels:
-    """The jitted halves of Newton's iterations and the adjoint's tangent, for Equations with a given
-    number of contact slots: one dispatch and one wait per iteration, each kernel ending with the next
-    linearisation."""
+    """The jitted halves of Newton's iterations and the adjoint's tangent, for Equations with a
+    given number of contact slots: one dispatch and one wait per iteration, each kernel ending with
+    the next linearisation."""
 
     def __init__(self, eqs: Equations, opts: NewtonOptions):
         self.start = jax.jit(partial(_start, eqs, opts))
@@ -71,13 +75,14 @@ class Kernels:
 
 
 class HostNewton:
-    """Newton driven from Python around jitted halves of an iteration, one sample at a time (any number
-    of threads may each solve one: samples share nothing but read-only data); warm starts where the
-    options ask for them."""
+    """Newton driven from Python around jitted halves of an iteration, one sample at a time (any
+    number of threads may each solve one: samples share nothing but read-only data); warm starts
+    where the options ask for them."""
 
     def __init__(self, eqs: Equations, backend, opts: NewtonOptions):
         self.eqs, self.backend, self.opts = eqs, backend, opts
-        self._kernels: dict[int | None, Kernels] = {}  # for each room for contact blocks (None: no contact)
+        # for each room for contact blocks (None: no contact)
+        self._kernels: dict[int | None, Kernels] = {}
         self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
         self._hold = jax.jit(partial(hold, opts))
         self._energy = jax.jit(partial(energy_at, eqs))
@@ -85,16 +90,18 @@ class HostNewton:
         self._lock = threading.Lock()
 
     def linearised(self, call, slots: int | None = None, tangents=lambda out: out[-1].kel):
-        """call(Kernels) with room for `slots` contact blocks, again with 4x as much until its `tangents`
-        hold every near one (the energy and force are exact either way; only the tangent needs the
-        room).  Each solve starts with CONTACT_SLOTS and its linearisations carry their room, so that
-        what a solve computes depends on its input only, not on the solves before it."""
+        """call(Kernels) with room for `slots` contact blocks, again with 4x as much until its
+        `tangents` hold every near one (the energy and force are exact either way; only the tangent
+        needs the room).  Each solve starts with CONTACT_SLOTS and its linearisations carry their
+        room, so that what a solve computes depends on its input only, not on the solves before
+        it."""
         slots = slots or CONTACT_SLOTS
         while True:
             room = min(slots, self.eqs.solid.contact.n_blocks) if self.eqs.solid.contact else None
             with self._lock:
                 kernels = self._kernels.get(room) or self._kernels.setdefault(
-                    room, Kernels(self.eqs.with_contact_slots(room), self.opts))
+                    room, Kernels(self.eqs.with_contact_slots(room), self.opts)
+                )
             out = call(kernels)
             kel = tangents(out)
             if bool(kel.complete):
@@ -104,16 +111,18 @@ class HostNewton:
 
     # -- one sample
     def solve(self, X, d, mat, ws, start: Start | None = None, rest: AtRest | None = None):
-        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts; rest, this
-        design's linearisation at rest, sets the cold tolerance) where given and it converges within
-        warm_iters iterations, else from rest (with `rest`'s factor where it has one).  An audited warm
-        solve is also solved from rest, and the cold answer taken where they differ."""
+        """One sample's equilibrium, and its Audit where it had one: from `start` (WarmStarts; rest,
+        this design's linearisation at rest, sets the cold tolerance) where given and it converges
+        within warm_iters iterations, else from rest (with `rest`'s factor where it has one).  An
+        audited warm solve is also solved from rest, and the cold answer taken where they differ."""
         if start is not None:
             escape = self.opts.escape_saddles and self.backend.reports_inertia
             warm = (start.u_free, start.u_D, rest.kel, start.X)
             u, info = self._solve(X, d, mat, ws, escape, warm, self.opts.warm_iters)
             converged = int(info.status) == Status.CONVERGED
-            self.warm.record(warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations))
+            self.warm.record(
+                warm_solves=1, warm_converged=int(converged), warm_iterations=int(info.iterations)
+            )
             if converged and not start.audit:
                 return u, info, None
             if converged:
@@ -125,7 +134,11 @@ class HostNewton:
                 if audit.same:
                     return u, info, audit
                 energy = lambda v: float(self._energy(X, d, mat, v))  # noqa: E731
-                return cold, cold_info, audit._replace(energy_warm=energy(u), energy_cold=energy(cold))
+                return (
+                    cold,
+                    cold_info,
+                    audit._replace(energy_warm=energy(u), energy_cold=energy(cold)),
+                )
         return (*self._cold(X, d, mat, ws, rest), None)
 
     def _cold(self, X, d, mat, ws, rest: AtRest | None = None):
@@ -133,29 +146,34 @@ class HostNewton:
             u, info = self._solve(X, d, mat, ws, False, rest=rest)
         else:
             u, info = self._solve(X, d, mat, ws, True, rest=rest)
-            if int(info.status) != Status.CONVERGED:  # leaving a saddle must not cost the solve: take the first stationary point
+            # leaving a saddle must not cost the solve: take the first stationary point
+            if int(info.status) != Status.CONVERGED:
                 u, info = self._solve(X, d, mat, ws, False, rest=rest)
         if self.warm is not None:
             self.warm.record(cold_solves=1, cold_iterations=int(info.iterations))
         return u, info
 
     def time_step(self, X, d, mat, ws, start, inertia, previous=None):
-        """One implicit time step (nma.dynamics): Newton from `start` = (u_free, u_D, kel_rest, X) of the
-        previous state, its potential with the step's Inertia.  `previous`: the last step's (Problem,
-        Linearised) at its converged end, which must be `start` under the same X and mat (they are then
-        taken from it): this step begins from that linearisation (its elastic part is this step's; only
-        the Inertia changes).  Returns (u_free, NewtonInfo, this step's (Problem, Linearised) at its end)."""
+        """One implicit time step (nma.dynamics): Newton from `start` = (u_free, u_D, kel_rest, X)
+        of the previous state, its potential with the step's Inertia.  `previous`: the last step's
+        (Problem, Linearised) at its converged end, which must be `start` under the same X and mat
+        (they are then taken from it): this step begins from that linearisation (its elastic part is
+        this step's; only the Inertia changes).  Returns (u_free, NewtonInfo, this step's (Problem,
+        Linearised) at its end)."""
         kernels = partial(self.backend.clock.time, "newton_kernels")
         with kernels():
             if previous is None:
                 p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start, inertia))
             else:
-                p, s, lin = self.linearised(lambda k: k.start_step(*previous, d, inertia),
-                                            previous[1].kel.which.shape[-1])
+                p, s, lin = self.linearised(
+                    lambda k: k.start_step(*previous, d, inertia), previous[1].kel.which.shape[-1]
+                )
         s, lin = self._iterate(p, s, lin, ws, False)
         return (*result(s), (p, lin))
 
-    def _solve(self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None):
+    def _solve(
+        self, X, d, mat, ws, escape: bool, start=None, budget=None, rest: AtRest | None = None
+    ):
         with self.backend.clock.time("newton_kernels"):  # dispatch and wait (XLA runs async)
             if start is not None:
                 p, s, lin = self.linearised(lambda k: k.start_warm(X, d, mat, *start))
@@ -168,29 +186,51 @@ class HostNewton:
         return result(self._iterate(p, s, lin, ws, escape, budget, shared)[0])
 
     def _iterate(self, p, s, lin, ws, escape: bool, budget=None, shared: AtRest | None = None):
-        """Newton's iterations from a started solve to its end: (the final state, its last linearisation)."""
-        kernels = partial(self.backend.clock.time, "newton_kernels")  # dispatch and wait (XLA runs async)
+        """Newton's iterations from a started solve to its end: (the final state, its last
+        linearisation)."""
+        # dispatch and wait (XLA runs async)
+        kernels = partial(self.backend.clock.time, "newton_kernels")
         checked = set()  # converged load steps whose stability was checked (each once)
         while True:
             with kernels():
                 status, next_status, shift, predictor, steps, it = jax.device_get(
-                    (s.status, lin.state.status, lin.state.shift, lin.state.predictor, lin.state.steps, s.it))
-            # a converged state (a load step's, seen at the predictor that follows it, or the final one)
-            # whose Hessian has negative eigenvalues is a saddle: leave it along its unstable mode
-            at_converged = next_status == Status.CONVERGED or (next_status == Status.RUNNING and predictor)
-            check = escape and at_converged and int(steps) not in checked and len(checked) < saddles.MAX_SADDLE_CHECKS
+                    (
+                        s.status,
+                        lin.state.status,
+                        lin.state.shift,
+                        lin.state.predictor,
+                        lin.state.steps,
+                        s.it,
+                    )
+                )
+            # a converged state (a load step's, seen at the predictor that follows it, or the final
+            # one) whose Hessian has negative eigenvalues is a saddle: leave it along its unstable
+            # mode
+            at_converged = next_status == Status.CONVERGED or (
+                next_status == Status.RUNNING and predictor
+            )
+            check = (
+                escape
+                and at_converged
+                and int(steps) not in checked
+                and len(checked) < saddles.MAX_SADDLE_CHECKS
+            )
             if status != Status.RUNNING:  # lin (of a state that ended) is not used
                 break
-            if budget is not None and next_status == Status.RUNNING and it >= budget:  # a warm start that is not quick
+            # a warm start that is not quick
+            if budget is not None and next_status == Status.RUNNING and it >= budget:
                 s = self._hold(lin)._replace(status=jnp.asarray(Status.ITERATION_LIMIT))
                 break
             if next_status != Status.RUNNING and not check:
                 s = self._hold(lin)
                 break
             factor, shared = shared or ws, None
-            # a converged state's factor is of K itself (its inertia; the adjoint's), else of the step's K + shift I
+            # a converged state's factor is of K itself (its inertia; the adjoint's), else of the
+            # step's K + shift I
             if factor is ws:
-                ws.factorise(lin.kel, 0.0 if next_status != Status.RUNNING or check else float(shift))
+                ws.factorise(
+                    lin.kel, 0.0 if next_status != Status.RUNNING or check else float(shift)
+                )
             if check:
                 checked.add(int(steps))
                 negative = factor.inertia if factor is not ws else self.backend.inertia(ws)
@@ -201,11 +241,14 @@ class HostNewton:
                 if next_status != Status.RUNNING:
                     s = self._hold(lin)
                     break
-                if factor is ws and float(shift):  # the predictor that follows is solved with the kept shift
+                # the predictor that follows is solved with the kept shift
+                if factor is ws and float(shift):
                     ws.factorise(lin.kel, float(shift))
             du = factor.solve(lin.rhs)
             with kernels():
-                s, lin = self.linearised(lambda k, lin=lin: k.step(p, lin, du), lin.kel.which.shape[-1])
+                s, lin = self.linearised(
+                    lambda k, lin=lin: k.step(p, lin, du), lin.kel.which.shape[-1]
+                )
         self.backend.count("newton_solves")
         self.backend.count("newton_iterations", int(s.it))
         return s, lin
@@ -213,8 +256,9 @@ class HostNewton:
     def adjoint(self, X, d, mat, u_free, u_bar, ws):
         kernels = partial(self.backend.clock.time, "adjoint_kernels")
         with kernels():
-            kel = jax.block_until_ready(self.linearised(lambda k: k.tangents(X, d, mat, u_free),
-                                                         tangents=lambda kel: kel))
+            kel = jax.block_until_ready(
+                self.linearised(lambda k: k.tangents(X, d, mat, u_free), tangents=lambda kel: kel)
+            )
         lam = ws.adjoint(kel, u_bar)
         with kernels():
             return jax.block_until_ready(self._pullback(X, d, mat, u_free, jnp.asarray(lam)))

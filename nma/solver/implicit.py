@@ -2,7 +2,8 @@
 
 At the solution the free residual vanishes, R_f(u_f*; X, d, mat) = 0, so for a cotangent u_bar_f of
 the free displacements the adjoint is  lambda = K_ff^-1 u_bar_f  and
-(X, d, mat)_bar = -lambda^T dR_f/d(X, d, mat); the Dirichlet part of u (A d) is differentiated by JAX.
+(X, d, mat)_bar = -lambda^T dR_f/d(X, d, mat); the Dirichlet part of u (A d) is differentiated by
+JAX.
 
 Two drivers of the same Newton iteration (nma.solver.newton):
 - traced (a traceable backend, `dense`): one `lax.while_loop`; a batch runs in lockstep under vmap.
@@ -11,6 +12,7 @@ Two drivers of the same Newton iteration (nma.solver.newton):
   it is one `pure_callback` per batch.  Saddles (nma.solver.saddles) and warm starts
   (nma.solver.warm) are the host driver's.
 """
+
 from __future__ import annotations
 
 from functools import partial
@@ -21,15 +23,16 @@ import jax.numpy as jnp
 from .batch import HostBatches
 from .equations import Equations, pullback, tangents_at
 from .host import HostNewton
-from .newton import newton_solve, result, setup
+from .newton import newton_solve, result
 from .options import NewtonOptions
+from .starts import setup
 from .status import Equilibrium, Status
 
 
 def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int = 0):
     """Return (equilibrium, warm starts): equilibrium(X, d, mat) -> Equilibrium (u (n_points, 2),
-    NewtonInfo), differentiable in X, d, mat; the WarmStarts it keeps (None where it keeps none: warm
-    starts off, or a traced backend, whose batch runs in lockstep from rest)."""
+    NewtonInfo), differentiable in X, d, mat; the WarmStarts it keeps (None where it keeps none:
+    warm starts off, or a traced backend, whose batch runs in lockstep from rest)."""
     warm = None
     if backend.traceable:
         solve_free = _traced_solve(eqs, backend, opts)
@@ -39,8 +42,8 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
-        # a failed solve's state is at the load it reached (a failed solve is a cold one: its load path
-        # scales the prescribed displacements from zero)
+        # a failed solve's state is at the load it reached (a failed solve is a cold one: its load
+        # path scales the prescribed displacements from zero)
         reached = jnp.where(info.status == Status.CONVERGED, 1.0, info.load)
         # where nothing was solved (load 0) the state is rest, whatever d holds (a non-finite d)
         return Equilibrium(eqs.full(u_free, eqs.A @ jnp.where(reached > 0, reached * d, 0.0)), info)
@@ -74,8 +77,14 @@ def _host_solve(batches: HostBatches):
     def call(X, d, mat, keep):
         solved = jax.eval_shape(lambda X, d, mat: result(setup(eqs, opts, X, d, mat)[1]), X, d, mat)
         shapes = (*solved, jax.ShapeDtypeStruct((), jnp.int64))  # u_free, info, workspace token
-        return jax.pure_callback(partial(batches.forward_batch, keep=keep), shapes, X, d, mat,
-                                 vmap_method="broadcast_all")
+        return jax.pure_callback(
+            partial(batches.forward_batch, keep=keep),
+            shapes,
+            X,
+            d,
+            mat,
+            vmap_method="broadcast_all",
+        )
 
     @jax.custom_vjp
     def solve_free(X, d, mat):
@@ -88,10 +97,22 @@ def _host_solve(batches: HostBatches):
 
     def bwd(res, cotangents):
         X, d, mat, u_free, token = res
-        out = (jax.ShapeDtypeStruct(X.shape, X.dtype), jax.ShapeDtypeStruct(d.shape, d.dtype),
-               jax.ShapeDtypeStruct(mat.shape, mat.dtype))
-        return jax.pure_callback(batches.backward_batch, out, X, d, mat, u_free, cotangents[0], token,
-                                 vmap_method="broadcast_all")
+        out = (
+            jax.ShapeDtypeStruct(X.shape, X.dtype),
+            jax.ShapeDtypeStruct(d.shape, d.dtype),
+            jax.ShapeDtypeStruct(mat.shape, mat.dtype),
+        )
+        return jax.pure_callback(
+            batches.backward_batch,
+            out,
+            X,
+            d,
+            mat,
+            u_free,
+            cotangents[0],
+            token,
+            vmap_method="broadcast_all",
+        )
 
     solve_free.defvjp(fwd, bwd)
     return solve_free

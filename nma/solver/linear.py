@@ -8,6 +8,7 @@ refactorisation happens only if that does not converge.  The `dense` backend is 
 Newton loop is traced, and a batch runs in lockstep under vmap (parallel on a GPU); a time step's
 Newton is driven from the host as the host backends' are, each factor a dense LU.
 """
+
 from __future__ import annotations
 
 import copy
@@ -27,7 +28,7 @@ import jax.scipy.linalg  # noqa: F401  (jax.scipy.linalg.lu_factor)
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ..geometry.discretise import Discretisation
+from ..discretise import Discretisation
 from ..registry import LINEAR_SOLVERS
 from .assembly import element_entries, sparse_pattern
 
@@ -36,7 +37,8 @@ REFINE_STEPS = 8
 
 
 class Stopwatch:
-    """Seconds spent per phase of the solver, summed over threads: where a training step's time goes."""
+    """Seconds spent per phase of the solver, summed over threads: where a training step's time
+    goes."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -76,9 +78,9 @@ class Workspace:
             return self._adjoint(kel, rhs, refine)
 
     def _adjoint(self, kel, rhs, refine: bool) -> np.ndarray:
-        """Solve K x = rhs with K from kel (the Hessian at the solution): refine from this workspace's
-        factor (of the last Newton iterate), refactorise only if refinement does not converge; with
-        refine=False (a factor known to be too far from K), refactorise at once."""
+        """Solve K x = rhs with K from kel (the Hessian at the solution): refine from this
+        workspace's factor (of the last Newton iterate), refactorise only if refinement does not
+        converge; with refine=False (a factor known to be too far from K), refactorise at once."""
         rhs = np.asarray(rhs, dtype=np.float64)
         scale = np.linalg.norm(rhs)
         if scale == 0.0:  # e.g. a sample masked out of the loss
@@ -99,6 +101,7 @@ class Workspace:
 
 class HostBackend:
     """Assembly from element tangents into the scene's fixed CSR pattern; workspaces per sample."""
+
     name = "host"
     upper = False
     traceable = False
@@ -106,9 +109,15 @@ class HostBackend:
     def __init__(self, disc: Discretisation):
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
-        # newton_solves and newton_iterations count every solve, a warm start's that was redone cold too
-        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "saddles_left": 0, "newton_solves": 0,
-                      "newton_iterations": 0}
+        # newton_solves and newton_iterations count every solve, a warm start's that was redone cold
+        # too
+        self.stats = {
+            "factorisations": 0,
+            "adjoint_refactorisations": 0,
+            "saddles_left": 0,
+            "newton_solves": 0,
+            "newton_iterations": 0,
+        }
         self.clock = Stopwatch()
 
     def count(self, what: str, n: int = 1) -> None:
@@ -133,9 +142,10 @@ class HostBackend:
         return None
 
     def negative_eigenvalues(self, kel) -> int | None:
-        """How many eigenvalues of K_ff are negative (where the factorisation reports its inertia): 0 at a
-        stable equilibrium; at a saddle (an unstable equilibrium, e.g. a symmetric path past a buckling
-        point) the count of its unstable modes."""
+        """How many eigenvalues of K_ff are negative (where the factorisation reports its inertia):
+        0 at a
+        stable equilibrium; at a saddle (an unstable equilibrium, e.g. a symmetric path past a
+        buckling point) the count of its unstable modes."""
         if not self.reports_inertia:
             return None
         ws = self.workspace()
@@ -151,7 +161,9 @@ class HostBackend:
 
 @LINEAR_SOLVERS.register("superlu")
 class SuperLUBackend(HostBackend):
-    """scipy's SuperLU: portable, no extra dependency, releases the GIL (samples factorise concurrently)."""
+    """scipy's SuperLU: portable, no extra dependency, releases the GIL (samples factorise
+    concurrently)."""
+
     name = "superlu"
 
     def factorise(self, A, previous):
@@ -170,8 +182,8 @@ class _PardisoFactor:
 
 
 def _point_pypardiso_at_mkl() -> None:
-    """pypardiso looks for MKL's runtime by a recursive search of the environment (about a second per
-    solver); the MKL wheel puts it in the environment's lib directory, so look there first."""
+    """pypardiso looks for MKL's runtime by a recursive search of the environment (about a second
+    per solver); the MKL wheel puts it in the environment's lib directory, so look there first."""
     if "PYPARDISO_MKL_RT" in os.environ:
         return
     for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
@@ -183,15 +195,16 @@ def _point_pypardiso_at_mkl() -> None:
 
 @LINEAR_SOLVERS.register("pardiso")
 class PardisoBackend(HostBackend):
-    """Intel MKL PARDISO, symmetric indefinite (mtype -2), upper triangle: symbolic analysis once per
-    handle, numerical refactorisation (phase 22) per Newton iteration.  A handle holds one factor, so
-    each workspace has its own handle, taken from a pool and given back when released."""
+    """Intel MKL PARDISO, symmetric indefinite (mtype -2), upper triangle: symbolic analysis once
+    per handle, numerical refactorisation (phase 22) per Newton iteration.  A handle holds one
+    factor, so each workspace has its own handle, taken from a pool and given back when released."""
+
     name = "pardiso"
     upper = True
-    # iparm[7]: 0 refines a solve (two steps) only where the factorisation perturbed a pivot; MKL's default
-    # for this matrix type, 2, refines every solve: two more back-substitutions and two matrix products each
-    # time, which changed no Newton or adjoint answer beyond round-off (Newton corrects its own steps, and
-    # the adjoint refines against the exact Hessian: Workspace._adjoint)
+    # iparm[7]: 0 refines a solve (two steps) only where the factorisation perturbed a pivot; MKL's
+    # default for this matrix type, 2, refines every solve: two more back-substitutions and two
+    # matrix products each time, which changed no Newton or adjoint answer beyond round-off (Newton
+    # corrects its own steps, and the adjoint refines against the exact Hessian: Workspace._adjoint)
     refinement_steps = 0
 
     def __init__(self, disc: Discretisation):
@@ -199,19 +212,25 @@ class PardisoBackend(HostBackend):
         _point_pypardiso_at_mkl()
         try:
             import pypardiso
-        except ImportError as exc:  # pragma: no cover - a dependency; MKL wheels exist for x86-64 only
-            raise RuntimeError("solver.linear=pardiso needs pypardiso (Intel MKL): pip install pypardiso, "
-                               "or use solver.linear=superlu") from exc
+        # pragma: no cover - a dependency; MKL wheels exist for x86-64 only
+        except ImportError as exc:
+            raise RuntimeError(
+                "solver.linear=pardiso needs pypardiso (Intel MKL): pip install pypardiso, "
+                "or use solver.linear=superlu"
+            ) from exc
         self._template = pypardiso.PyPardisoSolver(mtype=-2)  # finds and loads MKL (slow): once
-        # one thread per factorisation: a batch's samples run in parallel instead, and idle MKL threads
-        # spin-wait (stealing the core XLA needs) on systems this small (process-wide; numpy uses no MKL)
+        # one thread per factorisation: a batch's samples run in parallel instead, and idle MKL
+        # threads spin-wait (stealing the core XLA needs) on systems this small (process-wide; numpy
+        # uses no MKL)
         self._template.libmkl.MKL_Set_Num_Threads(1)
         self._idle: list[_PardisoFactor] = []
 
     def _new_solver(self):
         """A fresh PARDISO handle sharing the template's loaded library."""
         solver = copy.copy(self._template)
-        solver.pt, solver.iparm, solver.perm = (np.zeros_like(a) for a in (solver.pt, solver.iparm, solver.perm))
+        solver.pt, solver.iparm, solver.perm = (
+            np.zeros_like(a) for a in (solver.pt, solver.iparm, solver.perm)
+        )
         return solver
 
     def factorise(self, A, previous):
@@ -243,8 +262,8 @@ class PardisoBackend(HostBackend):
     reports_inertia = True
 
     def inertia(self, ws: Workspace) -> int:
-        """Negative eigenvalues of the last factorised matrix: the inertia of the symmetric-indefinite
-        LDL^T factorisation (iparm(23) in MKL's one-based numbering)."""
+        """Negative eigenvalues of the last factorised matrix: the inertia of the
+        symmetric-indefinite LDL^T factorisation (iparm(23) in MKL's one-based numbering)."""
         return int(ws.factor.solver.iparm[22])
 
 
@@ -279,6 +298,7 @@ class DenseBackend:
     solve's Newton loop is traced; a time step's (nma.dynamics) is driven from the host as the host
     backends' are, each factor a dense LU (DenseWorkspace).  The natural frequencies take the
     scene's sparse pattern (`pattern`, built when first asked)."""
+
     name = "dense"
     traceable = True  # the Newton loop is traced; batches run in lockstep under vmap
     reports_inertia = False
@@ -291,12 +311,18 @@ class DenseBackend:
         keep = np.flatnonzero((rows[:E] >= 0) & (cols[:E] >= 0))
         self.keep, self.rows, self.cols = keep, rows[keep], cols[keep]
         # each contact block's entries, a Dirichlet dof's row or column past the matrix (dropped)
-        self.contact_rows, self.contact_cols = (jnp.asarray(np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18))
-                                                for a in (rows, cols))
+        self.contact_rows, self.contact_cols = (
+            jnp.asarray(np.where(a[E:] >= 0, a[E:], self.n).reshape(-1, 18 * 18))
+            for a in (rows, cols)
+        )
         # counts of the host-driven solves (time steps); a traced solve counts nothing
         self._lock = threading.Lock()
-        self.stats = {"factorisations": 0, "adjoint_refactorisations": 0, "newton_solves": 0,
-                      "newton_iterations": 0}
+        self.stats = {
+            "factorisations": 0,
+            "adjoint_refactorisations": 0,
+            "newton_solves": 0,
+            "newton_iterations": 0,
+        }
         self.clock = Stopwatch()
         self.lu = jax.jit(lambda kel, shift: jax.scipy.linalg.lu_factor(self._matrix(kel, shift)))
         self.lu_solve = jax.jit(lambda factor, b: jax.scipy.linalg.lu_solve(factor, b))
@@ -325,10 +351,16 @@ class DenseBackend:
 
     def _matrix(self, kel, shift):
         Ke = kel.elements
-        K = jnp.zeros((self.n, self.n), Ke.dtype).at[self.rows, self.cols].add(Ke.reshape(-1)[self.keep])
+        K = (
+            jnp.zeros((self.n, self.n), Ke.dtype)
+            .at[self.rows, self.cols]
+            .add(Ke.reshape(-1)[self.keep])
+        )
         if kel.which.shape[-1]:  # empty slots: zero blocks
             at = jnp.maximum(kel.which, 0)
-            K = K.at[self.contact_rows[at], self.contact_cols[at]].add(kel.contact.reshape(len(at), -1), mode="drop")
+            K = K.at[self.contact_rows[at], self.contact_cols[at]].add(
+                kel.contact.reshape(len(at), -1), mode="drop"
+            )
         return K + shift * jnp.eye(self.n, dtype=Ke.dtype)
 
     def solve(self, kel, rhs, shift):
@@ -347,11 +379,13 @@ def pardiso_available() -> bool:
 
 @LINEAR_SOLVERS.register("auto")
 def auto_backend(disc: Discretisation):
-    """PARDISO where Intel MKL installs (x86-64: it factorises the paper scenes' Hessians several times faster
-    than SuperLU), SuperLU elsewhere (ARM laptops): the same answers, to round-off."""
+    """PARDISO where Intel MKL installs (x86-64: it factorises the paper scenes' Hessians several
+    times faster than SuperLU), SuperLU elsewhere (ARM laptops): the same answers, to round-off."""
     if pardiso_available():
         return PardisoBackend(disc)
-    logging.getLogger(__name__).info("solver.linear=auto: no Intel MKL on this platform, using SuperLU")
+    logging.getLogger(__name__).info(
+        "solver.linear=auto: no Intel MKL on this platform, using SuperLU"
+    )
     return SuperLUBackend(disc)
 
 

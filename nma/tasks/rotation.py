@@ -1,4 +1,6 @@
-"""Rotation (paper Sec. 4.1, Figs. 5-6): rotate the centre square's stick by theta about the centre."""
+"""Rotation (paper Sec. 4.1, Figs. 5-6): rotate the centre square's stick by theta about the
+centre."""
+
 from __future__ import annotations
 
 import jax
@@ -16,7 +18,8 @@ class Rotation(Task):
     def __init__(self, name, centre, points, theta_range, d_max, eval_angles):
         self.name = name
         self.centre = jnp.asarray(centre)
-        self.points = jnp.asarray(points)          # (2, 2) reference positions of left and right ends
+        # (2, 2) reference positions of left and right ends
+        self.points = jnp.asarray(points)
         self.lo, self.hi = theta_range
         self.d_max = d_max
         self._eval = jnp.linspace(self.lo, self.hi, eval_angles)[:, None]
@@ -53,10 +56,13 @@ class Rotation(Task):
         return np.degrees(np.asarray(ts)), ["target angle [degrees]"]
 
     def frozen_floor(self):
-        """The initial design and its actuators are mirror-symmetric about both axes through the centre,
-        so with the geometry frozen the stick cannot turn: the error is the target angle itself."""
-        return (float(np.mean(np.degrees(np.abs(np.asarray(self._eval))))),
-                "the mirror-symmetric initial design cannot turn the stick")
+        """The initial design and its actuators are mirror-symmetric about both axes through the
+        centre, so with the geometry frozen the stick cannot turn: the error is the target angle
+        itself."""
+        return (
+            float(np.mean(np.degrees(np.abs(np.asarray(self._eval))))),
+            "the mirror-symmetric initial design cannot turn the stick",
+        )
 
     def sweep(self, n):
         """From the smallest angle to the largest and back."""
@@ -69,8 +75,15 @@ def _rotation(name):
         X = sim.reference_points(sim.init_params())
         tracked = sim.disc.tracked_points(X)
         centre = 0.5 * (tracked["left"] + tracked["right"])
-        return Rotation(name, centre, jnp.stack([tracked["left"], tracked["right"]]), tuple(cfg.theta_range),
-                        cfg.d_max, cfg.eval_angles)
+        return Rotation(
+            name,
+            centre,
+            jnp.stack([tracked["left"], tracked["right"]]),
+            tuple(cfg.theta_range),
+            cfg.d_max,
+            cfg.eval_angles,
+        )
+
     return build
 
 

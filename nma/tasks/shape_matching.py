@@ -11,6 +11,7 @@ Loss (the authors' code): centre both shapes and scale them to unit mean radius;
 cyclic re-indexings of the target take the rotation that best aligns the shapes (2D Procrustes, in
 closed form with arctan2) and the mean L1 distance |dx| + |dy| per point; the loss is the smallest.
 """
+
 from __future__ import annotations
 
 import jax
@@ -32,7 +33,9 @@ def normalise(points: jnp.ndarray) -> jnp.ndarray:
 def rotate(points: jnp.ndarray, theta) -> jnp.ndarray:
     """Points (..., N, 2) turned by theta (...) about the origin."""
     c, s = jnp.cos(theta)[..., None], jnp.sin(theta)[..., None]
-    return jnp.stack([c * points[..., 0] - s * points[..., 1], s * points[..., 0] + c * points[..., 1]], axis=-1)
+    return jnp.stack(
+        [c * points[..., 0] - s * points[..., 1], s * points[..., 0] + c * points[..., 1]], axis=-1
+    )
 
 
 def aligned(observed: jnp.ndarray, target: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -64,7 +67,9 @@ def fit_onto(observed: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
 def resample(polyline: jnp.ndarray, n: int) -> jnp.ndarray:
     """n points at equal arc length along a closed polyline (its last point equal to its first),
     starting at its first point."""
-    length = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.linalg.norm(jnp.diff(polyline, axis=0), axis=-1))])
+    length = jnp.concatenate(
+        [jnp.zeros(1), jnp.cumsum(jnp.linalg.norm(jnp.diff(polyline, axis=0), axis=-1))]
+    )
     s = jnp.linspace(0.0, length[-1], n + 1)[:-1]
     return jnp.stack([jnp.interp(s, length, polyline[:, k]) for k in range(2)], axis=-1)
 

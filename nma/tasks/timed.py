@@ -1,17 +1,21 @@
-"""Tasks in time (nma.dynamics): the network maps a descriptor to each actuator's waveform, the scene moves
-through time, and the goal is over a window of its trajectory.
+"""Tasks in time (nma.dynamics): the network maps a descriptor to each actuator's waveform, the
+scene moves through time, and the goal is over a window of its trajectory.
 
-- `follow_path`: a tracked point follows a circle through its rest position, of radius r and starting
-  direction phi (the descriptor), once per waveform period.
-- `energy_focus`: an impulse on one side; the share of the kinetic energy in a region over the window,
-  maximised by co-designing the pores and the other actuators' waveforms.
+- `follow_path`: a tracked point follows a circle through its rest position, of radius r and
+  starting direction phi (the descriptor), once per waveform period.
+- `energy_focus`: an impulse on one side; the share of the kinetic energy in a region over the
+  window, maximised by co-designing the pores and the other actuators' waveforms.
+
+Either is posed on a scene in YAML (conf/task/follow_path.yaml, strip_follow.yaml: its kind's
+schema, a scheme, its fields), and takes its time stepping from the simulator
+(Simulator.dynamics).
 
 A sample's state is its trajectory (Motion: u and v at every step); every state of it is checked for
 validity, and the figures show its last state, the trajectory against its target and the energies.
 """
+
 from __future__ import annotations
 
-import dataclasses
 import logging
 from typing import NamedTuple
 
@@ -19,12 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..dynamics.mass import mass_blocks
-from ..dynamics.modes import natural_frequencies, static_suffices
-from ..dynamics.trajectory import Dynamics
+from ..dynamics.mass import element_kinetic
+from ..dynamics.modes import static_suffices
+from ..dynamics.settings import lowest_frequency, time_step
 from ..dynamics.waveform import Fourier, Pulse
 from ..errors import ConfigError
-from ..mechanics.energy import quadrature
 from .base import Task
 from .schemas import EnergyFocusTask, FollowPathTask
 
@@ -33,12 +36,14 @@ log = logging.getLogger(__name__)
 
 class Motion(NamedTuple):
     """A trajectory: displacement and velocity at every time step (steps + 1, n_points, 2)."""
+
     u: jnp.ndarray
     v: jnp.ndarray
 
 
 class TimedTask(Task):
     """What the tasks in time share: the dynamics they solve with, the waveform, the window."""
+
     in_time = True
 
     def __init__(self, cfg):
@@ -47,16 +52,21 @@ class TimedTask(Task):
         self.dynamics = None
 
     def attach(self, sim, dcfg, density: float) -> None:
-        """Build the run's Dynamics: dt (by default a 20th of the lowest natural period at rest), then
-        the waveform in steps of it; say where the actuation is slow enough for the static model."""
+        """The run's time stepping, from the simulator (Simulator.dynamics): dt (by default a 20th
+        of the lowest natural period at rest, the one modal solve), then the waveform in steps of
+        it; say where the actuation is slow enough for the static model."""
         X, mat = sim.reference_points(sim.init_params()), sim.material_params
-        omega_1 = float(natural_frequencies(sim, X, mat, density, count=1)[0])
-        dt = dcfg.dt if dcfg.dt is not None else 2.0 * np.pi / omega_1 / 20.0
-        self.dt, self.density = dt, density
-        self.fourier = Fourier(self.actuators(sim), self.cfg.harmonics, self.cfg.period_steps * dt,
-                               self.cfg.ramp_steps * dt, self.d_max)
-        self.dynamics = Dynamics.from_settings(sim, dataclasses.replace(dcfg, dt=dt), density, self.waveform, X, mat)
-        said = static_suffices(omega_1, self.cfg.period_steps * dt / self.cfg.harmonics)
+        omega_1 = lowest_frequency(sim, X, mat, density)
+        self.dt, self.density = time_step(dcfg.dt, omega_1), density
+        self.fourier = Fourier(
+            self.actuators(sim),
+            self.cfg.harmonics,
+            self.cfg.period_steps * self.dt,
+            self.cfg.ramp_steps * self.dt,
+            self.d_max,
+        )
+        self.dynamics = sim.dynamics(dcfg, self.waveform, density, X=X, mat=mat, omega_1=omega_1)
+        said = static_suffices(omega_1, self.cfg.period_steps * self.dt / self.cfg.harmonics)
         if said:
             log.warning("%s", said)
 
@@ -85,14 +95,14 @@ class TimedTask(Task):
         return np.asarray(m.u)[:, -1]
 
     def check_states(self, checker, m, ok):
-        """Every state of every trajectory checked; a sample's Validity is its first state that is not
-        physical, else its last."""
+        """Every state of every trajectory checked; a sample's Validity is its first state that is
+        not physical, else its last."""
         from ..geometry.validity import summarise
 
         u = np.asarray(m.u)
         n, k = u.shape[:2]
         flat = checker.check_batch(u.reshape((n * k,) + u.shape[2:]), np.repeat(ok, k))
-        per = [flat[i * k:(i + 1) * k] for i in range(n)]
+        per = [flat[i * k : (i + 1) * k] for i in range(n)]
         first = [None if s[0] is None else next((v for v in s if not v.valid), s[-1]) for s in per]
         return first, summarise(flat)
 
@@ -101,36 +111,47 @@ class TimedTask(Task):
         return self.dynamics.times
 
     def element_kinetic(self, sim, X, v):
-        """Each element's kinetic energy at every state of velocities v (k, n_points, 2): (k, elements),
-        differentiable in X and v."""
-        M = mass_blocks(sim.disc.solid, quadrature(sim.disc.solid, X), self.density)
-        ve = jnp.asarray(v).reshape(len(v), -1)[:, sim.equations.edofs[:sim.equations.elements]]
-        return 0.5 * jnp.einsum("kea,eab,keb->ke", ve, M, ve)
+        """Each element's kinetic energy at every state of velocities v (k, n_points, 2):
+        (k, elements), differentiable in X and v (nma.dynamics.mass.element_kinetic)."""
+        return element_kinetic(sim.equations, X, v, self.density)
 
     def kinetic(self, sim, X, v, elements=None):
-        """Kinetic energy at every state of a trajectory's velocities v (steps + 1, n_points, 2), of the
-        elements weighted by `elements` (all where None)."""
+        """Kinetic energy at every state of a trajectory's velocities v (steps + 1, n_points, 2),
+        of the elements weighted by `elements` (all where None)."""
         per = self.element_kinetic(sim, X, v)
         return np.asarray(per.sum(-1) if elements is None else per @ elements)
 
     def figures(self, directory, sim, evaluation) -> list[str]:
-        """energy.png (the kinetic energy over time) and motion.gif (the first evaluation sample moving)."""
+        """energy.png (the kinetic energy over time) and motion.gif (the first evaluation sample
+        moving)."""
         from ..viz.motion import animation_motion, figure_energy
 
         X, m = jnp.asarray(evaluation.X), evaluation.motion
-        kinetic = [self.kinetic(sim, X, m.v[i]) for i in range(len(evaluation.ts)) if evaluation.ok[i]]
+        kinetic = [
+            self.kinetic(sim, X, m.v[i]) for i in range(len(evaluation.ts)) if evaluation.ok[i]
+        ]
         region = self.region_energies(sim, X, m, evaluation.ok)
         figure_energy(directory / "energy.png", self, self.times, kinetic, region, self.cfg.window)
         points, targets = self.traces(sim, X, m.u[0], evaluation.ts[0])
-        animation_motion(directory / "motion.gif", sim, self, X, m.u[0], self.times,
-                         f"{self.name}: {self.describe(evaluation.ts[0])}", points, targets)
+        animation_motion(
+            directory / "motion.gif",
+            sim,
+            self,
+            X,
+            m.u[0],
+            self.times,
+            f"{self.name}: {self.describe(evaluation.ts[0])}",
+            points,
+            targets,
+        )
         return ["energy.png", "motion.gif"]
 
     def region_energies(self, sim, X, m, ok):
         return None
 
     def traces(self, sim, X, u, t):
-        """(the tracked point at every state, its target there: NaN outside the window) for the animation."""
+        """(the tracked point at every state, its target there: NaN outside the window) for the
+        animation."""
         return None, None
 
 
@@ -159,10 +180,13 @@ class FollowPath(TimedTask):
         return jax.vmap(lambda ui: sim.tracked(X, ui)[self.point])(m.u[self.window])
 
     def targets(self, t):
-        """The circle through the rest position: start + r (e(omega t + phi) - e(phi)) at the window's times."""
+        """The circle through the rest position: start + r (e(omega t + phi) - e(phi)) at the
+        window's times."""
         omega = 2 * jnp.pi / (self.cfg.period_steps * self.dt)
         angle = omega * jnp.asarray(self.times[self.window]) + t[1]
-        return self.start + t[0] * jnp.stack([jnp.cos(angle) - jnp.cos(t[1]), jnp.sin(angle) - jnp.sin(t[1])], -1)
+        return self.start + t[0] * jnp.stack(
+            [jnp.cos(angle) - jnp.cos(t[1]), jnp.sin(angle) - jnp.sin(t[1])], -1
+        )
 
     def loss(self, out, t):
         return jnp.mean(jnp.linalg.norm(out - self.targets(t), axis=-1))
@@ -178,8 +202,10 @@ class FollowPath(TimedTask):
 
     def coordinates(self, ts):
         ts = np.asarray(ts)
-        return np.stack([ts[:, 0] * np.cos(ts[:, 1]), ts[:, 0] * np.sin(ts[:, 1])], -1), \
-            ["r cos(phi) [length units]", "r sin(phi) [length units]"]
+        return np.stack([ts[:, 0] * np.cos(ts[:, 1]), ts[:, 0] * np.sin(ts[:, 1])], -1), [
+            "r cos(phi) [length units]",
+            "r sin(phi) [length units]",
+        ]
 
     def figures(self, directory, sim, evaluation) -> list[str]:
         from ..viz.motion import figure_paths
@@ -194,13 +220,18 @@ class FollowPath(TimedTask):
         return points, targets
 
     def frozen_floor(self):
-        """The initial design and its two horizontal actuators are mirror-symmetric about the pointer's
-        row: with the geometry frozen the pointer moves sideways only, so at best the target's vertical
-        offset stays, averaged over the window."""
+        """The initial design and its two horizontal actuators are mirror-symmetric about the
+        pointer's row: with the geometry frozen the pointer moves sideways only, so at best the
+        target's vertical offset stays, averaged over the window."""
         if self.dynamics is None:
             return None
-        err = [np.mean(np.abs(np.asarray(self.targets(t))[:, 1] - float(self.start[1]))) for t in self._eval]
-        return float(np.mean(err)), "the pointer of the mirror-symmetric initial design moves sideways only"
+        err = [
+            np.mean(np.abs(np.asarray(self.targets(t))[:, 1] - float(self.start[1])))
+            for t in self._eval
+        ]
+        return float(np.mean(err)), (
+            "the pointer of the mirror-symmetric initial design moves sideways only"
+        )
 
 
 def follow_path(cfg: FollowPathTask, sim) -> FollowPath:
@@ -237,8 +268,8 @@ class EnergyFocus(TimedTask):
         return jnp.zeros((n, 1))
 
     def net_input(self, t):
-        """A constant input, one: one task, one waveform (a zero input would give the output layer, which
-        has no bias, nothing to scale)."""
+        """A constant input, one: one task, one waveform (a zero input would give the output
+        layer, which has no bias, nothing to scale)."""
         return jnp.ones_like(t)
 
     def observe(self, sim, geom, X, m, mat):
@@ -275,10 +306,18 @@ def energy_focus(cfg: EnergyFocusTask, sim) -> EnergyFocus:
     X = np.asarray(sim.reference_points(sim.init_params()))
     centres = X[np.asarray(sim.disc.mesh.elem_points).reshape(-1, 9)].mean(axis=1)
     x0, y0, x1, y1 = cfg.region
-    inside = (centres[:, 0] >= x0) & (centres[:, 0] <= x1) & (centres[:, 1] >= y0) & (centres[:, 1] <= y1)
+    inside = (
+        (centres[:, 0] >= x0)
+        & (centres[:, 0] <= x1)
+        & (centres[:, 1] >= y0)
+        & (centres[:, 1] <= y1)
+    )
     if not inside.any():  # a share of nothing: no design can raise it
         lo, hi = centres.min(axis=0), centres.max(axis=0)
-        raise ConfigError(f"task.region={list(cfg.region)} holds no element of scene {sim.disc.spec.name} "
-                          f"(an element is in it where its centre is; the centres span x {lo[0]:.3g} to "
-                          f"{hi[0]:.3g}, y {lo[1]:.3g} to {hi[1]:.3g} at rest)")
+        raise ConfigError(
+            f"task.region={list(cfg.region)} holds no element of scene "
+            f"{sim.disc.spec.name} (an element is in it where its centre is; the "
+            f"centres span x {lo[0]:.3g} to {hi[0]:.3g}, y {lo[1]:.3g} to "
+            f"{hi[1]:.3g} at rest)"
+        )
     return EnergyFocus(cfg, inside.astype(float))

@@ -1,4 +1,6 @@
-"""Translation (paper Sec. 4.1): move the pointer to any target in a box with two horizontal actuations."""
+"""Translation (paper Sec. 4.1): move the pointer to any target in a box with two horizontal
+actuations."""
+
 from __future__ import annotations
 
 import jax
@@ -14,7 +16,9 @@ class Translation(Task):
     metric_unit = "length units (cell = 5)"
     metric_dimension = "length"
 
-    def __init__(self, start, half_width: float, d_max: float, eval_grid: int, point: str = "pointer"):
+    def __init__(
+        self, start, half_width: float, d_max: float, eval_grid: int, point: str = "pointer"
+    ):
         self.name = "translation"
         self.start = jnp.asarray(start)
         self.half_width, self.d_max, self.point = half_width, d_max, point
@@ -46,11 +50,13 @@ class Translation(Task):
         return np.asarray(ts), ["target offset x [length units]", "target offset y [length units]"]
 
     def frozen_floor(self):
-        """The initial design and its two horizontal actuators are mirror-symmetric about the pointer's
-        row, so with the geometry frozen the pointer moves sideways only: at best the vertical offset of
-        each target stays."""
-        return (float(np.mean(np.abs(np.asarray(self._eval)[:, 1]))),
-                "the pointer of the mirror-symmetric initial design moves sideways only")
+        """The initial design and its two horizontal actuators are mirror-symmetric about the
+        pointer's row, so with the geometry frozen the pointer moves sideways only: at best the
+        vertical offset of each target stays."""
+        return (
+            float(np.mean(np.abs(np.asarray(self._eval)[:, 1]))),
+            "the pointer of the mirror-symmetric initial design moves sideways only",
+        )
 
     def sweep(self, n):
         """Once round the circle inscribed in the target box."""

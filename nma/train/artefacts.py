@@ -1,4 +1,6 @@
-"""What a finished run leaves in its directory: metrics, fields of the evaluation samples, figures."""
+"""What a finished run leaves in its directory: metrics, fields of the evaluation samples,
+figures."""
+
 from __future__ import annotations
 
 import json
@@ -15,64 +17,110 @@ from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 from matplotlib.transforms import Bbox  # noqa: E402
 
-from ..io.fields import sampler, write_fields  # noqa: E402
+from ..io.fields import sampler, write_fields, write_trajectory  # noqa: E402
 from .trainer import Evaluation  # noqa: E402
+from .shape_figures import (  # noqa: E402
+    colour_panel,
+    draw_target,
+    figure_colour_map,
+    figure_display,
+    figure_shapes,
+)
 from ..viz.plot import ACTUATED, MATERIAL, TRACKED, draw_actuated, draw_shape  # noqa: E402
 
 
 def write_metrics(run_dir: Path, task, evaluation: Evaluation, history: list, extra: dict) -> Path:
     path = run_dir / "metrics.json"
-    body = {"task": task.name, "metric": task.metric_name, "unit": task.metric_unit,
-            "value": evaluation.record[task.metric_name], "step": evaluation.record["step"],
-            "failed_solves": evaluation.record["failed_solves"], "per_sample": evaluation.record["per_sample"],
-            "history": history, **extra, **evaluation.record}
+    body = {
+        "task": task.name,
+        "metric": task.metric_name,
+        "unit": task.metric_unit,
+        "value": evaluation.record[task.metric_name],
+        "step": evaluation.record["step"],
+        "failed_solves": evaluation.record["failed_solves"],
+        "per_sample": evaluation.record["per_sample"],
+        "history": history,
+        **extra,
+        **evaluation.record,
+    }
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(body, indent=1))
     tmp.replace(path)
     return path
 
 
-def write_eval_fields(directory: Path, sim, evaluation: Evaluation, samples: int, task=None) -> list[Path]:
-    """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory` (a task in
-    time: its last state; and trajectories.h5, every state of every sample)."""
-    X, d, u, out, ts, ok = evaluation.X, evaluation.d, evaluation.u, evaluation.out, evaluation.ts, evaluation.ok
+def write_eval_fields(
+    directory: Path, sim, evaluation: Evaluation, samples: int, task=None
+) -> list[Path]:
+    """One HDF5 (+ XDMF) file per converged evaluation sample, eval_<i>.h5, into `directory` (a task
+    in time: its last state; and trajectories.h5, every state of every sample)."""
+    X, d, u, out, ts, ok = (
+        evaluation.X,
+        evaluation.d,
+        evaluation.u,
+        evaluation.out,
+        evaluation.ts,
+        evaluation.ok,
+    )
     paths, sample = [], sampler(sim.disc, X, samples)
     for i in range(len(ts)):
         if not ok[i]:
             continue
-        h5, _ = write_fields(directory / f"eval_{i:03d}.h5", sim.disc, X, u[i], samples,
-                             attrs={"descriptor": np.asarray(ts[i]), "actuation": np.asarray(d[i]),
-                                    "observed": np.asarray(out[i])}, sample=sample)
+        h5, _ = write_fields(
+            directory / f"eval_{i:03d}.h5",
+            sim.disc,
+            X,
+            u[i],
+            samples,
+            attrs={
+                "descriptor": np.asarray(ts[i]),
+                "actuation": np.asarray(d[i]),
+                "observed": np.asarray(out[i]),
+            },
+            sample=sample,
+        )
         paths.append(h5)
     if evaluation.motion is not None:  # a task in time: every state of every sample
-        import h5py
-
-        directory.mkdir(parents=True, exist_ok=True)
-        with h5py.File(directory / "trajectories.h5", "w") as f:
-            f["times"], f["descriptors"], f["converged"] = task.times, np.asarray(ts), np.asarray(ok)
-            f["u"], f["v"] = np.asarray(evaluation.motion.u), np.asarray(evaluation.motion.v)
-        paths.append(directory / "trajectories.h5")
+        motion = evaluation.motion
+        paths.append(
+            write_trajectory(
+                directory / "trajectories.h5",
+                task.times,
+                motion.u,
+                motion.v,
+                {"descriptors": ts, "converged": ok},
+            )
+        )
     return paths
 
 
 def figure_designs(path: Path, sim, X_before, X_after, mm_per_unit: float | None = None):
-    """The design before and after training, on one scale: in mm where the run states its part's scale,
-    else in the scene's length units."""
+    """The design before and after training, on one scale: in mm where the run states its part's
+    scale, else in the scene's length units."""
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.9), sharex=True, sharey=True)
     unit = "length units" if mm_per_unit is None else "mm"
     for ax, X, which in ((axes[0], X_before, "initial"), (axes[1], X_after, "learned")):
         X = np.asarray(X)
-        draw_shape(ax, sim.disc, X, f"{which} design", colour=MATERIAL[which],
-                   tracked=sim.disc.tracked_points(X), frame=True)
+        draw_shape(
+            ax,
+            sim.disc,
+            X,
+            f"{which} design",
+            colour=MATERIAL[which],
+            tracked=sim.disc.tracked_points(X),
+            frame=True,
+        )
         draw_actuated(ax, sim.disc, X)
         ax.set_xlabel(f"x [{unit}]")
         if mm_per_unit is not None:  # the drawing stays in scene units; its ticks say millimetres
             for axis in (ax.xaxis, ax.yaxis):
                 axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v * mm_per_unit:g}"))
     axes[0].set_ylabel(f"y [{unit}]")
-    handles = [Patch(fc=MATERIAL["initial"], ec="#2b3a55", label="material, initial design"),
-               Patch(fc=MATERIAL["learned"], ec="#2b3a55", label="material, learned design"),
-               Line2D([], [], color=ACTUATED, lw=2, label="actuated boundary")]
+    handles = [
+        Patch(fc=MATERIAL["initial"], ec="#2b3a55", label="material, initial design"),
+        Patch(fc=MATERIAL["learned"], ec="#2b3a55", label="material, learned design"),
+        Line2D([], [], color=ACTUATED, lw=2, label="actuated boundary"),
+    ]
     if sim.disc.tracked:
         handles.append(Line2D([], [], color=TRACKED, marker="o", ls="", label="tracked point"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
@@ -82,7 +130,8 @@ def figure_designs(path: Path, sim, X_before, X_after, mm_per_unit: float | None
 
 
 def _grid(xy: np.ndarray):
-    """(xs, ys, column, row) when the points (n, 2) fill a grid of at least 2 x 2 exactly, else None."""
+    """(xs, ys, column, row) when the points (n, 2) fill a grid of at least 2 x 2 exactly, else
+    None."""
     xy = np.round(xy, 9)
     xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
     if len(xs) * len(ys) != len(xy) or min(len(xs), len(ys)) < 2:
@@ -91,8 +140,8 @@ def _grid(xy: np.ndarray):
 
 
 def _layout(task, ts, limit: int):
-    """Which samples to draw (at most `limit`) and where: (indices, rows, cols, (row, col) per index).
-    Samples on a 2D grid of descriptors keep their places (largest y on top)."""
+    """Which samples to draw (at most `limit`) and where: (indices, rows, cols, (row, col) per
+    index). Samples on a 2D grid of descriptors keep their places (largest y on top)."""
     n = len(ts)
     pick = np.arange(n) if n <= limit else np.linspace(0, n - 1, limit).round().astype(int)
     coords = task.coordinates(np.asarray(ts)[pick])
@@ -120,12 +169,17 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
         ax = axes[r, c]
         status = f"error {per[i]:.3g}" if ok[i] else f"solve failed, scored {per[i]:.3g}"
         invalid = validity[i] is not None and not validity[i].valid
-        draw_shape(ax, sim.disc, np.asarray(X + u[i]), f"{task.describe(ts[i])}\n{status}"
-                   + (", NOT PHYSICAL" if invalid else ""), colour=MATERIAL["invalid" if invalid else "deformed"])
+        draw_shape(
+            ax,
+            sim.disc,
+            np.asarray(X + u[i]),
+            f"{task.describe(ts[i])}\n{status}" + (", NOT PHYSICAL" if invalid else ""),
+            colour=MATERIAL["invalid" if invalid else "deformed"],
+        )
         ax.title.set_fontsize(7)
         if invalid:
             ax.title.set_color(ACTUATED)
-        _draw_target(ax, task, out[i], ts[i])
+        draw_target(ax, task, out[i], ts[i])
     drawn = [axes[r, c] for r, c in place]
     box = Bbox.union([ax.dataLim for ax in drawn])
     pad = 0.05 * max(box.width, box.height)
@@ -133,12 +187,24 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
         ax.set_xlim(box.x0 - pad, box.x1 + pad)
         ax.set_ylim(box.y0 - pad, box.y1 + pad)
     handles, labels = axes[place[0]].get_legend_handles_labels()
-    shown = "every evaluation sample" if len(pick) == len(ts) else f"{len(pick)} of the {len(ts)} evaluation samples"
+    shown = (
+        "every evaluation sample"
+        if len(pick) == len(ts)
+        else f"{len(pick)} of the {len(ts)} evaluation samples"
+    )
     n_invalid = evaluation.record["invalid_states"]
-    fig.suptitle(f"{task.name}: {shown}, deformed, on one scale\nmean {task.metric_label} = "
-                 f"{evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
-                 + (f"; {n_invalid} of {evaluation.record['checked_states']} states not physical (red: material "
-                    f"inverted or a wall through a wall)" if n_invalid else ""), fontsize=9)
+    fig.suptitle(
+        f"{task.name}: {shown}, deformed, on one scale\nmean {task.metric_label} = "
+        f"{evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
+        + (
+            f"; {n_invalid} of {evaluation.record['checked_states']} states not physical (red: "
+            "material "
+            f"inverted or a wall through a wall)"
+            if n_invalid
+            else ""
+        ),
+        fontsize=9,
+    )
     if labels:
         fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
@@ -155,7 +221,9 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
     coords = task.coordinates(np.asarray(ts))
     fig, ax = plt.subplots(figsize=(5.6, 4.4))
     if coords is None:
-        ax.hist(per[ok], bins=min(20, max(5, ok.sum() // 3)), color=MATERIAL["initial"], ec="#2b3a55")
+        ax.hist(
+            per[ok], bins=min(20, max(5, ok.sum() // 3)), color=MATERIAL["initial"], ec="#2b3a55"
+        )
         ax.set(xlabel=label, ylabel="evaluation samples")
     elif coords[0].shape[1] == 1:
         x = coords[0][:, 0]
@@ -168,24 +236,44 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
             xs, ys, col, row = grid
             values = np.full((len(ys), len(xs)), np.nan)
             values[row[ok], col[ok]] = per[ok]
-            edges = lambda v: np.concatenate([[1.5 * v[0] - 0.5 * v[1]], 0.5 * (v[1:] + v[:-1]),  # noqa: E731
-                                              [1.5 * v[-1] - 0.5 * v[-2]]])
+            edges = lambda v: np.concatenate(
+                [
+                    [1.5 * v[0] - 0.5 * v[1]],
+                    0.5 * (v[1:] + v[:-1]),  # noqa: E731
+                    [1.5 * v[-1] - 0.5 * v[-2]],
+                ]
+            )
             shown = ax.pcolormesh(edges(xs), edges(ys), values, cmap="viridis", vmin=0.0)
         else:
             shown = ax.scatter(x[ok], y[ok], c=per[ok], s=40, cmap="viridis", vmin=0.0)
         fig.colorbar(shown, ax=ax, label=f"error [{task.metric_unit}]")
         # equal axes where the points span both (points on one line would make a degenerate box)
         span = np.ptp(coords[0], axis=0)
-        ax.set(xlabel=coords[1][0], ylabel=coords[1][1], aspect="equal" if span.min() > 1e-6 * span.max() else "auto")
+        ax.set(
+            xlabel=coords[1][0],
+            ylabel=coords[1][1],
+            aspect="equal" if span.min() > 1e-6 * span.max() else "auto",
+        )
     if (~ok).any() and coords is not None:
         xy = coords[0][~ok]
-        ax.plot(xy[:, 0], xy[:, 1] if xy.shape[1] > 1 else np.zeros(len(xy)), "x", color=ACTUATED, ms=8,
-                mew=2, label="solve failed")
+        ax.plot(
+            xy[:, 0],
+            xy[:, 1] if xy.shape[1] > 1 else np.zeros(len(xy)),
+            "x",
+            color=ACTUATED,
+            ms=8,
+            mew=2,
+            label="solve failed",
+        )
         ax.legend(fontsize=8)
     failed = evaluation.record["failed_solves"]
-    ax.set_title(f"{task.name}: {task.metric_label} per evaluation sample\n"
-                 f"(mean over all {len(per)}: {evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
-                 + (f"; {failed} solves failed" if failed else "") + ")", fontsize=9)
+    ax.set_title(
+        f"{task.name}: {task.metric_label} per evaluation sample\n"
+        f"(mean over all {len(per)}: {evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
+        + (f"; {failed} solves failed" if failed else "")
+        + ")",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
@@ -207,19 +295,21 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
 
     def draw(i):
         for artist in [*ax.collections, *ax.lines, *ax.patches]:
-            artist.remove()  # the last frame's drawing; ax.clear() would rebuild the axes (most of a frame's time)
+            # the last frame's drawing; ax.clear() would rebuild the axes (most of a frame's time)
+            artist.remove()
         title = f"{task.describe(ts[i])}: error {sweep.record['per_sample'][i]:.3g}"
         if getattr(task, "display", None) is not None:
-            _colour_panel(ax, task, np.asarray(X + u[i]), geom, title)
+            colour_panel(ax, task, np.asarray(X + u[i]), geom, title)
         else:
             draw_shape(ax, sim.disc, np.asarray(X + u[i]), title, colour=MATERIAL["deformed"])
-            _draw_target(ax, task, out[i], ts[i])
+            draw_target(ax, task, out[i], ts[i])
             ax.legend(loc="lower left", fontsize=7)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
         fig.suptitle(f"{task.name}, learned design; error in {task.metric_unit}", fontsize=8)
 
-    # the writer's own loop: FuncAnimation would draw each frame twice (on screen, then into the file)
+    # the writer's own loop: FuncAnimation would draw each frame twice (on screen, then into the
+    # file)
     writer = PillowWriter(fps=fps)
     with writer.saving(fig, path, dpi=100):
         for i in frames:
@@ -229,113 +319,27 @@ def animation_sweep(path: Path, sim, task, sweep: Evaluation, geom, fps: float) 
     return path
 
 
-def _draw_target(ax, task, out, t):
-    if task.shown_target(out, t) is None or np.asarray(out).size % 2 or np.asarray(task.shown_target(out, t)).size % 2:
-        return  # not points in the plane (a task from outside may observe anything): nothing to draw
-    tgt = np.asarray(task.shown_target(out, t)).reshape(-1, 2)
-    obs = np.asarray(out).reshape(-1, 2)
-    if task.outline:
-        close = lambda a: np.concatenate([a, a[:1]])
-        ax.plot(*close(tgt).T, "--", color="#1f3fbf", lw=1.2, label="target")
-        ax.plot(*close(obs).T, "-", color="#2ca02c", lw=1.2, label="reached")
-    else:
-        ax.plot(tgt[:, 0], tgt[:, 1], "x", color="#1f3fbf", ms=7, mew=2, label="target")
-        ax.plot(obs[:, 0], obs[:, 1], "o", color="#2ca02c", ms=4, label="reached")
-
-
-def figure_shapes(path: Path, task, evaluation: Evaluation, n: int = 16):
-    """Held-out targets (dashed, fitted onto the pore by scale, rotation and re-indexing) and the pore
-    the material reached for each, with its error."""
-    out, ts, ok = evaluation.out, evaluation.ts, evaluation.ok
-    k = min(n, len(ts))
-    cols = int(np.ceil(np.sqrt(k)))
-    rows = int(np.ceil(k / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 2.2 * rows + 0.4), squeeze=False)
-    for i, ax in enumerate(axes.ravel()):
-        ax.axis("off")
-        if i >= k:
-            continue
-        _draw_target(ax, task, out[i], ts[i])
-        ax.set_aspect("equal")
-        err = evaluation.record["per_sample"][i]
-        ax.set_title(f"error {err:.3f}" if ok[i] else "solve failed", fontsize=8)
-    axes[0, 0].legend(loc="lower left", fontsize=6)
-    fig.suptitle(f"{task.name}: held-out targets and reached pores\n"
-                 f"(mean {task.metric_label} = {evaluation.record[task.metric_name]:.3f} {task.metric_unit})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-
-
-def _colour_panel(ax, task, points, geom, title):
-    pos = np.asarray(task.display.positions(points))
-    col = np.asarray(task.display.colours(geom["colours"]))
-    ax.scatter(pos[:, 0], pos[:, 1], c=col, cmap="Greys", vmin=0.0, vmax=1.0, s=0.6, marker="s",
-               linewidths=0, rasterized=True)
-    for (x0, x1, y0, y1) in np.asarray(task.display_windows):
-        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#d62728", lw=0.6))
-    ax.set_aspect("equal")
-    ax.set_title(title, fontsize=8, y=1.0)  # a fixed place, as draw_shape's
-    ax.axis("off")
-
-
-def figure_display(path: Path, task, evaluation: Evaluation, geom, n: int = 10):
-    """What the material shows: the colour field (black = 1) on the deformed material, the seven
-    display windows (red), for the first n evaluation samples, and their input images."""
-    X, u, out, ts = evaluation.X, evaluation.u, evaluation.out, evaluation.ts
-    pick = task.one_of_each_digit(ts, n)
-    k = len(pick)
-    images = not task.lookup
-    cols = (k + 1) // 2
-    rows = 2 * (1 + images)
-    fig, axes = plt.subplots(rows, cols, figsize=(2.0 * cols, 2.9 * rows - 1.3 * images * 2),
-                             gridspec_kw={"height_ratios": ([1, 2.2] if images else [1]) * 2}, squeeze=False)
-    for a in axes.ravel():
-        a.axis("off")
-    validity = evaluation.validity
-    for j, i in enumerate(pick):
-        row, col = divmod(j, cols)
-        label = int(ts[i][0])
-        shown = task.decode(np.asarray(out[i]))
-        verdict = "right" if shown == label else f"shows {shown if shown is not None else '?'}"
-        if validity[i] is not None and not validity[i].valid:
-            verdict += ", NOT PHYSICAL"
-        _colour_panel(axes[row * (1 + images) + images, col], task, np.asarray(X + u[i]), geom,
-                      f"digit {label}: {verdict}")
-        if images:
-            axes[row * 2, col].imshow(np.asarray(ts[i][1:]).reshape(28, 28), cmap="Greys")
-    n_invalid = evaluation.record["invalid_states"]
-    fig.suptitle(f"{task.name} ({'lookup table' if task.lookup else 'held-out images'}): "
-                 f"{task.metric_label} = {evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
-                 + (f"; {n_invalid} of {evaluation.record['checked_states']} states not physical" if n_invalid else ""),
-                 fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-
-
-def figure_colour_map(path: Path, sim, task, geom):
-    fig, ax = plt.subplots(figsize=(3.2, 4.4))
-    X = np.asarray(sim.reference_points(geom))
-    _colour_panel(ax, task, X, geom, "learned colour field, undeformed (black = 1)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-
-
 def figure_curves(path: Path, task, history: list):
     steps = [h["step"] for h in history]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
     losses = [np.nan if h["loss"] is None else h["loss"] for h in history]  # a gap: a skipped step
     ax[0].plot(steps, losses, lw=1)
-    positive = all(not np.isfinite(v) or v > 0 for v in losses)  # a loss to maximise a share is negative
-    ax[0].set(xlabel="training step", ylabel="training loss (batch)", yscale="log" if positive else "linear",
-              title="loss of each step")
+    # a loss to maximise a share is negative
+    positive = all(not np.isfinite(v) or v > 0 for v in losses)
+    ax[0].set(
+        xlabel="training step",
+        ylabel="training loss (batch)",
+        yscale="log" if positive else "linear",
+        title="loss of each step",
+    )
     ev = [(h["step"], h[task.metric_name]) for h in history if task.metric_name in h]
     if ev:
         ax[1].plot(*zip(*ev), "o-", ms=3)
-    ax[1].set(xlabel="training step", ylabel=f"{task.metric_label}\n[{task.metric_unit}]",
-              title="on the evaluation set")
+    ax[1].set(
+        xlabel="training step",
+        ylabel=f"{task.metric_label}\n[{task.metric_unit}]",
+        title="on the evaluation set",
+    )
     for a in ax:
         a.title.set_fontsize(9)
     fig.tight_layout()
@@ -343,11 +347,18 @@ def figure_curves(path: Path, task, history: list):
     plt.close(fig)
 
 
-def write_figures(figures: Path, trainer, evaluation, X_before, animation_frames: int,
-                  mm_per_unit: float | None = None) -> Path:
-    """The figures of a finished run into `figures/`: the design before and after, the evaluation deformed
-    (or, for a colour display, what it shows), the learning curves, the error map where the task has
-    one, the sweep animation, the pore shapes.  `mm_per_unit`: the design's axes in mm (part.scale)."""
+def write_figures(
+    figures: Path,
+    trainer,
+    evaluation,
+    X_before,
+    animation_frames: int,
+    mm_per_unit: float | None = None,
+) -> Path:
+    """The figures of a finished run into `figures/`: the design before and after, the evaluation
+    deformed (or, for a colour display, what it shows), the learning curves, the error map where the
+    task has one, the sweep animation, the pore shapes.  `mm_per_unit`: the design's axes in mm
+    (part.scale)."""
     sim, task = trainer.sim, trainer.task
     geom = trainer.state["params"]["geom"]
     figures.mkdir(exist_ok=True)

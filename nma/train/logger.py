@@ -1,4 +1,5 @@
 """Experiment loggers: wandb (offline by default, no network needed) or none."""
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,14 @@ class WandbLogger:
         import wandb
 
         os.environ.setdefault("WANDB_SILENT", "true")
-        self.run = wandb.init(project=project, dir=str(run_dir), mode=mode, config=config, name=name,
-                              reinit="finish_previous")
+        self.run = wandb.init(
+            project=project,
+            dir=str(run_dir),
+            mode=mode,
+            config=config,
+            name=name,
+            reinit="finish_previous",
+        )
 
     def log(self, record: dict, step: int) -> None:
         self.run.log({k: v for k, v in record.items() if isinstance(v, (int, float))}, step=step)
