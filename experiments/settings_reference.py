@@ -201,6 +201,8 @@ def material_file(name: str) -> str:
         "Its settings, to set yours: docs/reference/settings.md (Material laws).",
     ]
     body = {"law": name, "E": cfg.E, "nu": cfg.nu, "parameters": cfg.parameters}
+    if cfg.stretches != paper.stretches:  # a law not stable over the default range
+        body["stretches"] = cfg.stretches
     return (
         "\n".join([*(f"# {line}" for line in head), WRITTEN])
         + "\n"

@@ -78,8 +78,9 @@ def resolve(
     decided = {"fidelity": fidelity, "contact": contact, "solver": solver}
     if model is not None:
         material = settings.material
-        if material.formulation == "auto":
-            material = replace(material, formulation=model.formulation)
+        if material.formulation == "auto":  # a law without a volume term: displacement
+            whole = not material.law_model().volume_term
+            material = replace(material, formulation="displacement" if whole else model.formulation)
         decided["material"] = material
     return replace(settings, **decided)
 

@@ -3,6 +3,9 @@ material files and the settings' checks come from the declaration; plane strain 
 the 3D energy; Neo-Hookean's own energy gives its closed forms; and parameters that are not the
 law's are refused naming the law, the parameter and its range."""
 
+import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -226,3 +229,63 @@ def test_the_laws_functions_check_their_other_arguments_naming_them():
         with pytest.raises(kind) as err:
             call()
         assert says in str(err.value)
+
+
+OUTSIDE_LAW = '''"""A law written outside nma: Neo-Hookean with a quadratic term in I1 - 3."""
+from nma.mechanics.laws import InvariantLaw, Parameter, register
+
+
+@register
+class Quadratic(InvariantLaw):
+    name = "outside_quadratic"
+    parameters = (
+        Parameter("C10", 0.01346, "(0, inf)", "the coefficient of I1 - 3"),
+        Parameter("C20", 0.001, "[0, inf)", "the coefficient of (I1 - 3)^2"),
+    )
+
+    def shear_modulus(self, q):
+        return 2.0 * q["C10"]
+
+    def stress_free(self, q):
+        return 2.0 * q["C10"]
+
+    def psi(self, q, I1, I2):
+        return q["C10"] * (I1 - 3.0) + q["C20"] * (I1 - 3.0) ** 2
+'''
+
+
+def test_a_law_installed_from_outside_runs_by_its_name_alone(tmp_path):
+    """An installed package's `nma.laws` entry point whose module is one law file: with no
+    material file, `material=<its name>` composes it at its declared defaults and a scene solves
+    in it (the static translation at 5 x 2, nma.simulate's JSON line)."""
+    (tmp_path / "outside_law.py").write_text(OUTSIDE_LAW)
+    dist = tmp_path / "outside_law-0.1.dist-info"  # what pip install leaves: found on sys.path
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: outside-law\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[nma.laws]\nquadratic = outside_law\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    args = [
+        "material=outside_quadratic",
+        "scene=translation",
+        "fidelity.quad_points=2",
+        "actuation=[1.0,0.5]",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ]
+    proc = subprocess.run(
+        [sys.executable, "-m", "nma.simulate", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["converged"] and out["valid"]
+    assert out["material"] == {
+        "law": "outside_quadratic",
+        "C10": 0.01346,
+        "C20": 0.001,
+        "nu": 0.3,
+        "formulation": "displacement",
+    }

@@ -44,6 +44,12 @@ class Material:
                 f"material.formulation must be one of {list(FORMULATIONS)}, "
                 f"got {self.formulation!r}"
             )
+        if self.mixed and not self.law.volume_term:
+            raise ConfigError(
+                f"material.formulation=mixed evaluates the volume term per element: law "
+                f"{self.law.name} has none (its energy is whole), set "
+                "material.formulation=displacement"
+            )
 
     @property
     def mixed(self) -> bool:
@@ -95,7 +101,7 @@ class Material:
         without the volumetric term kappa/2 (log J)^2 (the `mixed` formulation adds it per
         element)."""
         mu, kappa = self.moduli(params)
-        k = kappa if volumetric else 0.0
+        k = kappa if volumetric and self.law.volume_term else 0.0
         if self.law.closed_form:
             return (
                 jnp.vectorize(lambda f: neo_hookean(f, mu, k), signature="(2,2)->()"),
@@ -111,6 +117,8 @@ class Material:
         c0 = self.law.stress_free(q)
 
         def W(f):
+            if not self.law.volume_term:  # psi is the whole energy (St Venant-Kirchhoff)
+                return self.law.psi_plane(q, f.T @ f)
             logJ = jnp.log(det2(f))
             return self.law.psi_plane(q, f.T @ f) - c0 * logJ + 0.5 * k * logJ**2
 

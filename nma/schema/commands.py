@@ -10,6 +10,7 @@ from typing import Any, ClassVar, List, Optional
 from omegaconf import MISSING
 
 from ..errors import ConfigError
+from ..mechanics.laws import LAWS
 from ..mechanics.options import LAW_NAMES, MATERIAL_RANGES, MODES, STRESS_UNITS
 from ..settings import Schema, bounded, choice, option
 from .physics import (
@@ -232,7 +233,8 @@ class EvaluateConfig(Schema):
 
 
 # Neo-Hookean is Mooney-Rivlin with C01 = 0
-FIT_LAWS = tuple(law for law in LAW_NAMES if law != "neo_hookean")
+# a fit reads incompressible tensile data: the laws with the volume term, whose limit that is
+FIT_LAWS = tuple(law for law in LAW_NAMES if law != "neo_hookean" and LAWS.get(law).volume_term)
 
 
 @dataclass

@@ -89,7 +89,8 @@ class MaterialConfig(Schema):
         doc="mixed: the volume term at each "
         "element's mean dilatation, which does not lock as nu -> 0.5 "
         "(nma.mechanics.energy); auto: mixed from nu "
-        f"{NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model)",
+        f"{NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model); a law without "
+        "a volume term (st_venant_kirchhoff): displacement",
     )
 
     def check(self):
@@ -138,7 +139,8 @@ class MaterialConfig(Schema):
         parameter that is a field here (E) given there, the others in `parameters`."""
         values, own = law_of(name).defaults(), set(cls.__dataclass_fields__)
         top = {n: values.pop(n) for n in list(values) if n in own}
-        return cls(law=name, parameters=values, **{"E": None, **top})
+        stretches = list(law_of(name).stretch_range)
+        return cls(law=name, parameters=values, stretches=stretches, **{"E": None, **top})
 
     @property
     def values(self) -> dict:

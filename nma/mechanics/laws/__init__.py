@@ -1,5 +1,5 @@
-"""The hyperelastic laws, one module each: Neo-Hookean, Mooney-Rivlin, Yeoh, Ogden, Gent and
-Arruda-Boyce.
+"""The hyperelastic laws, one module each: Neo-Hookean, Mooney-Rivlin, Yeoh, Ogden, Gent,
+Arruda-Boyce and St Venant-Kirchhoff.
 
 Every law has the same compressible form, the paper's Neo-Hookean generalised:
 
@@ -11,7 +11,8 @@ dpsi/dlambda at rest makes the reference stress-free, and kappa is the bulk modu
 material's Poisson's ratio nu at its initial shear modulus mu0: kappa = 2 mu0 (1 + nu) /
 (3 (1 - 2 nu)), as Neo-Hookean's E / (3 (1 - 2 nu)).  With c0 = mu0 = mu and psi = mu/2 (I1 - 3)
 the form is Neo-Hookean's, so a Mooney-Rivlin with C01 = 0, a Yeoh with C20 = C30 = 0 and a
-one-term Ogden with alpha = 2 are it.  The volumetric term is the part the `mixed` formulation
+one-term Ogden with alpha = 2 are it.  St Venant-Kirchhoff's psi is its whole energy
+(`Law.volume_term` False: no log J terms).  The volumetric term is the part the `mixed` formulation
 evaluates at each element's mean dilatation.
 
 A material is one array: the law's parameters in `Law.names` order, then nu (Neo-Hookean's
@@ -40,9 +41,8 @@ from .base import (
 )
 
 PLUGIN_GROUP = "nma.laws"  # entry points of installed packages whose modules register laws
-BROKEN_PLUGINS: dict[
-    str, str
-] = {}  # entry point -> why it did not import (its laws are unavailable)
+# entry point -> why it did not import (its laws are unavailable)
+BROKEN_PLUGINS: dict[str, str] = {}
 _HOMOGENEOUS = (
     "mode_stretches",
     "nominal_stress",

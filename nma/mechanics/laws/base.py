@@ -7,7 +7,9 @@ the 3D right Cauchy-Green tensor C = F^T F) or of StretchLaw (psi of the sums of
 principal stretches), decorated with `@register`.  It declares `name` and `parameters` (Parameter:
 name, default, range, meaning, in the material array's order) and defines psi, `shear_modulus` (mu0)
 and `stress_free` (c0 = dpsi/dlambda at rest), each a function of `q`, the material's parameters by
-name (the law's and nu).  Plane strain (F_33 = 1) is the reduction `psi_plane`, written once here.
+name (the law's and nu).  A law whose psi is its whole energy (St Venant-Kirchhoff) sets
+`volume_term` False and says where it is unstable (`drucker`).  Plane strain (F_33 = 1) is the
+reduction `psi_plane`, written once here.
 
 This module imports no JAX, so that the config schema reads the declarations without it: `jnp` is
 jax.numpy, imported at its first use.
@@ -111,6 +113,12 @@ class Law:
     # Drucker-stable at every stretch for all admissible parameters: the config skips the check
     # (nma.mechanics.laws.homogeneous.check_stable)
     stable: ClassVar[bool] = False
+    # False: psi is the law's whole energy W, without -c0 log J + kappa/2 (log J)^2 (kappa is then
+    # only the inversion barrier's scale; the `mixed` formulation, which evaluates that term per
+    # element, and the incompressible tests of nma.mechanics.laws.homogeneous do not apply)
+    volume_term: ClassVar[bool] = True
+    # the principal stretches its material file asks it to be stable over (material.stretches)
+    stretch_range: ClassVar[tuple[float, float]] = (0.5, 2.0)
 
     @classmethod
     def of(cls, given=()) -> "Law":
@@ -154,6 +162,12 @@ class Law:
     def psi_plane(self, q, C):
         """psi in plane strain: of the 2 x 2 C, the third principal stretch 1 (F_33 = 1)."""
         raise NotImplementedError
+
+    def drucker(self, low: float, high: float) -> str | None:
+        """Where the law is not Drucker-stable at principal stretches in [low, high] ('' nowhere),
+        for a law that knows it in closed form; None: the incompressible tests decide
+        (nma.mechanics.laws.homogeneous.drucker_unstable)."""
+        return None
 
     # -- a config's check ----------------------------------------------------------------------
     def check(self, values: Mapping, nu: float) -> None:

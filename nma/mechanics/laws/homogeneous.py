@@ -79,6 +79,11 @@ def nominal_stress(law: Law, p, mode: str, lam):
     what a tensile test measures, the force over the undeformed section.  p: the law's parameters
     (Law.names); lam: a positive stretch or an array of them."""
     p, mode = checked_parameters("nominal_stress", law, p), _checked_mode("nominal_stress", mode)
+    if not law.volume_term:
+        raise ConfigError(
+            f"nominal_stress: law {law.name}'s energy has no incompressible limit (nu -> 0.5), "
+            "which these tests are of: give it its nu and solve the deformation"
+        )
     lam = checks.array("nominal_stress", "lam", jnp.atleast_1d(jnp.asarray(lam, float)), (None,))
     if not isinstance(lam, jax.core.Tracer) and not np.all(np.asarray(lam) > 0):
         raise ConfigError(
@@ -101,6 +106,9 @@ def drucker_unstable(law: Law, p, stretches=(0.5, 2.0), samples: int = 201) -> s
             f"drucker_unstable: stretches must be (low, high) with 0 < low < high, got {[lo, hi]}"
         )
     samples = checks.integer("drucker_unstable", "samples", samples, "[2, 1000000]")
+    known = law.drucker(lo, hi)
+    if known is not None:
+        return known
     lam = np.exp(np.linspace(np.log(stretches[0]), np.log(stretches[1]), samples))
     for mode in MODES:
         slope = np.asarray(
