@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all repro-check settings-reference clean
+.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all repro-check verify settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -114,6 +114,9 @@ repro-all:          ## every reproduction above, in two lanes side by side (one 
 
 repro-check:        ## results/ against its record (results/record.json): exit 1 where a result got worse than its noise band
 	$(PYTHON) experiments/guard.py
+
+verify:             ## verification benchmarks (cantilever frequencies, Cook's membrane, St Venant-Kirchhoff) against their references; exit 1 where one leaves its tolerance -> results/verification/
+	$(PYTHON) experiments/verify.py
 
 settings-reference:  ## docs/reference/settings.md from the config schema (a test fails where it is stale)
 	$(PYTHON) experiments/settings_reference.py

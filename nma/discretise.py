@@ -33,6 +33,8 @@ class Discretisation:
     boundary: Boundary
     # name -> (point indices (m*m,), basis weights (m*m,))
     tracked: dict = field(default_factory=dict)
+    # a dead load per unit reference area (2,), density x gravity; None: none
+    body_force: tuple[float, float] | None = None
 
     @property
     def mesh(self) -> Mesh:
@@ -119,13 +121,15 @@ def discretise(
     fidelity=None,
     contact=None,
     material: Material | str = "displacement",
+    body_force: tuple[float, float] | None = None,
 ) -> Discretisation:
     """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its
     fields: the control points and Gauss points per patch, the inversion barrier; an `auto` is
     decided by the command, nma.resolve, before it gets here; None: the paper's 5 x 5), with the
     pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the
     `material` (its law and formulation; a formulation's name, one of
-    nma.mechanics.options.FORMULATIONS: the Neo-Hookean law's)."""
+    nma.mechanics.options.FORMULATIONS: the Neo-Hookean law's), and a dead load per unit reference
+    area `body_force` (density x gravity: SceneConfig.body_force), None: none."""
     material = material if isinstance(material, Material) else Material(material)
     fidelity = Resolution.of(fidelity)
     design = make_design(spec)
@@ -163,6 +167,7 @@ def discretise(
         solid=Solid(mesh, material, model),
         boundary=boundary,
         tracked=tracked,
+        body_force=None if body_force is None else tuple(float(b) for b in body_force),
     )
 
 

@@ -122,6 +122,7 @@ class Simulator:
             s.fidelity,
             contact_options(s.contact),
             material_of(s.material),
+            s.scene.body_force(s.material.density),
         )
         sim = cls(
             disc,

@@ -6,34 +6,10 @@ displacement from below to 6.918). Pure-displacement quadratic B-splines lock on
 they approach from below; the mixed formulation (volume term at each element's mean dilatation,
 nma.mechanics.energy) does not lock and approaches from above, as mixed u-p fields do."""
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
-from nma.discretise import Resolution, discretise
-from nma.geometry.scene import cooks_membrane
-from nma.mechanics.material import from_lame
-from nma.simulator import Simulator
-
-REFERENCE_TIP = 6.93
-MAT = from_lame(mu=80.194, kappa=400889.8)
-
-
-def tip_displacement(ctrl: int, formulation: str = "displacement") -> float:
-    sim = Simulator(
-        discretise(cooks_membrane(), Resolution(ctrl, 3), material=formulation), "pardiso"
-    )
-    sol = sim.solve({}, jnp.zeros(0), MAT)
-    return float(sim.tracked(sim.reference_points({}), sol.u)["tip"][1] - 60.0)
-
-
-def richardson(spans, tips):
-    """Limit L and rate p of v(h) = L - C h^p through three meshes."""
-    h = 1.0 / np.asarray(spans, float)
-    ratio = (tips[1] - tips[0]) / (tips[2] - tips[1])
-    p = brentq(lambda p: (h[0] ** p - h[1] ** p) / (h[1] ** p - h[2] ** p) - ratio, 0.2, 6.0)
-    return tips[0] + (tips[1] - tips[0]) / (h[0] ** p - h[1] ** p) * h[0] ** p, p
+from experiments.verify import REFERENCE_TIP, richardson, tip_displacement
 
 
 def check_convergence(spans, tolerance, formulation="displacement"):

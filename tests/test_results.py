@@ -91,3 +91,11 @@ def test_a_follow_path_result_shows_each_traced_path_against_its_target(tmp_path
     assert [p["error"] for p in frozen] == pytest.approx([0.25, 0.25])
     figure = figure_paths_side_by_side(tmp_path)
     assert figure == tmp_path / "paths.png" and figure.stat().st_size > 10_000
+
+
+def test_the_verification_report_records_every_benchmark_within_tolerance():
+    """results/verification/ (make verify, experiments/verify.py): every benchmark passed."""
+    body = json.loads((ROOT / "results" / "verification" / "result.json").read_text())
+    assert body["passed"] and body["failures"] == [], body["failures"]
+    assert {"cantilever", "cooks_membrane", "st_venant_kirchhoff"} <= set(body)
+    assert (ROOT / "results" / "verification" / "report.md").is_file()

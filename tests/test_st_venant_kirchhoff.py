@@ -2,7 +2,8 @@
 lambda/2 (tr E)^2 + mu tr(E^2) in plane strain; its small-strain moduli are linear elasticity's; its
 uniaxial plane-strain stress is the closed form E'/2 (l^3 - l), E' = E / (1 - nu^2) (e.g. Holzapfel,
 Nonlinear solid mechanics, sec. 6.5; Belytschko, Liu and Moran, sec. 5.4.2); it is refused where
-it softens (below the stretch sqrt(1/3)); and a scene solves in it."""
+it softens (below the stretch sqrt(1/3)); and a scene solves in it.  The uniaxial computation is
+experiments/verify.py's, whose report (make verify) shows it beside the closed form."""
 
 import jax
 import jax.numpy as jnp
@@ -10,13 +11,15 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from experiments.verify import SVK_E as E
+from experiments.verify import SVK_NU as NU
+from experiments.verify import lateral_stretch, svk_uniaxial_stress
 from nma.errors import ConfigError
 from nma.mechanics.laws import drucker_unstable, law_of, nominal_stress
 from nma.mechanics.material import Material
 from nma.schema import MaterialConfig
 from nma.simulator import Simulator
 
-E, NU = 0.07, 0.3
 MU, LAMBDA = E / (2 * (1 + NU)), E * NU / ((1 + NU) * (1 - 2 * NU))
 PLANE = E / (1 - NU**2)  # uniaxial stress in plane strain: 4 mu (lambda + mu) / (lambda + 2 mu)
 SVK = Material(law=law_of("st_venant_kirchhoff"))
@@ -27,12 +30,6 @@ def textbook(F):
     """lambda/2 (tr E)^2 + mu tr(E^2), E = (F^T F - I)/2, the 2 x 2 E of plane strain (E_33 = 0)."""
     Eg = 0.5 * (F.T @ F - np.eye(2))
     return 0.5 * LAMBDA * np.trace(Eg) ** 2 + MU * np.trace(Eg @ Eg)
-
-
-def lateral_stretch(lam):
-    """The stretch across a uniaxial plane-strain stress of stretch lam: S_22 = 0 gives
-    E_22 = -nu / (1 - nu) E_11."""
-    return np.sqrt(1.0 - NU / (1.0 - NU) * (lam**2 - 1.0))
 
 
 def test_energy_is_the_textbook_green_lagrange_form_and_the_reference_is_free():
@@ -64,8 +61,7 @@ def test_uniaxial_nominal_stress_is_the_closed_form_at_finite_strain():
     """P_11 = E'/2 (l^3 - l) in uniaxial plane-strain stress at stretches 0.7 to 1.8, the lateral
     face free (P_22 = 0); its minimum is at l = sqrt(1/3), found here by a root of dP/dl."""
     lam = np.linspace(0.7, 1.8, 12)
-    F = jnp.asarray([np.diag([a, lateral_stretch(a)]) for a in lam])
-    stress = np.asarray(SVK.point_terms(P)[1](F))
+    stress = svk_uniaxial_stress(lam)  # at F = diag(l, lateral_stretch(l))
     np.testing.assert_allclose(stress[:, 1, 1], 0.0, atol=1e-14)
     np.testing.assert_allclose(stress[:, 0, 0], PLANE / 2 * (lam**3 - lam), rtol=1e-12)
     p11 = jax.grad(lambda a: SVK.point_terms(P)[1](jnp.diag(jnp.stack([a, 1.0 + 0 * a])))[0, 0])

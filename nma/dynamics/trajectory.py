@@ -110,9 +110,10 @@ class Dynamics:
             checkpoints,
         )
         check_dynamics(sim, options, density, waveform, v0, workers, parts)
-        if np.any(np.asarray(sim.equations.f_ext)):
+        if np.any(np.asarray(sim.equations.f_ext)) or sim.equations.body is not None:
             raise ConfigError(
-                "dynamics starts at rest: a scene with a dead load would start out of balance"
+                "dynamics starts at rest: a scene with a dead load (a traction, scene.gravity) "
+                "would start out of balance"
             )
         if v0 is not None and (alpha or beta):
             raise ConfigError(

@@ -82,11 +82,11 @@ class SceneConfig(Schema, SceneChecks):
     (each with its default and range in docs/reference/settings.md): `name`, `cells`, `cell_size`
     (or `x_breaks`, `y_breaks`), the actuated `groups` (`GroupConfig`), the `supports`
     (`SupportConfig`) and `pinned` points that hold the body, the `tracked` material points a task
-    reads, the design's box (`radii_init`, `radii_bounds`, `corner_box`, `locked_nodes`), shape
-    matching's `central_pore`, digital MNIST's `colours`, and `round_pore_corners`, `contact` and
-    `fidelity`.  Every field is checked on construction, and `spec()` refuses a well-formed scene
-    that cannot be a physical set-up (a body nothing holds, a group off the outer boundary, cells in
-    pieces), naming the field.
+    reads, the `gravity` whose dead load the body carries, the design's box (`radii_init`,
+    `radii_bounds`, `corner_box`, `locked_nodes`), shape matching's `central_pore`, digital
+    MNIST's `colours`, and `round_pore_corners`, `contact` and `fidelity`.  Every field is checked
+    on construction, and `spec()` refuses a well-formed scene that cannot be a physical set-up (a
+    body nothing holds, a group off the outer boundary, cells in pieces), naming the field.
 
     Examples:
         >>> strip = SceneConfig(name="strip", cells="PP\\nPP", tracked={"tip": [10, 5]},
@@ -112,6 +112,14 @@ class SceneConfig(Schema, SceneChecks):
     pinned: List[Any] = field(default_factory=list)  # [[x, y], ...]
     supports: List[SupportConfig] = field(default_factory=list)  # segments that hold the body
     tracked: Dict[str, Any] = field(default_factory=dict)  # name -> [x, y] (a material point)
+    gravity: Optional[List[float]] = bounded(
+        None,
+        "[-1e30, 1e30]",
+        doc="[gx, gy]: an acceleration, in the scene's length units per time unit squared (those "
+        "of material.density), whose dead load material.density x gravity per unit reference area "
+        "the body carries, ramped with the load steps like the other dead loads; null or [0, 0]: "
+        "none",
+    )
     radii_init: float = bounded(
         0.5, "(0, 1)", doc="the pores' initial radii, a fraction of the cell"
     )
@@ -138,6 +146,13 @@ class SceneConfig(Schema, SceneChecks):
     # the discretisation its runs use where the command names none (fidelity=scene, the default): a
     # mapping of fidelity.ctrl_per_patch and/or fidelity.quad_points; empty: the paper's 5 x 5
     fidelity: Dict[str, int] = field(default_factory=dict)
+
+    def body_force(self, density: float):
+        """The dead load per unit reference area, density x gravity (2,), or None without
+        gravity."""
+        if self.gravity is None or not any(self.gravity):
+            return None
+        return (float(density * self.gravity[0]), float(density * self.gravity[1]))
 
     def rows(self) -> list[str]:
         return [r.replace(" ", "") for r in self.cells.split()]
@@ -196,6 +211,8 @@ class SceneConfig(Schema, SceneChecks):
             b = self.breaks(axis)
             if len(b) != n + 1 or any(b1 <= b0 for b0, b1 in zip(b, b[1:])):
                 self.fail(f"{axis}_breaks", f"must be {n + 1} increasing values for {n} cells", b)
+        if self.gravity is not None and len(self.gravity) != 2:
+            self.fail("gravity", "must be [gx, gy] (or null: no gravity)", self.gravity)
         unknown = set(self.fidelity) - {"ctrl_per_patch", "quad_points"}
         if unknown:
             self.fail(

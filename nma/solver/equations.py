@@ -55,6 +55,8 @@ class Equations:
         self.A = jnp.asarray(disc.boundary.actuation_matrix)
         self.f_ext = jnp.asarray(disc.boundary.external_force)
         self.f_free = self.f_ext[self.free]
+        # the body force per unit reference area (2,), None: none
+        self.body = None if disc.body_force is None else jnp.asarray(disc.body_force)
         self.edofs = jnp.asarray(element_dofs(disc.solid))
         self.elements = disc.mesh.elem_points.reshape(-1, 9).shape[0]
 
@@ -63,6 +65,21 @@ class Equations:
         other = copy.copy(self)
         other.contact_slots = slots
         return other
+
+    def external_force(self, quad):
+        """The dead load at full load factor (2 n_points,): the tractions' f_ext, and with a body
+        force b its consistent nodal forces, integral of N_a b over the reference configuration by
+        the energy's quadrature (so they follow the design, through quad's weights)."""
+        if self.body is None:
+            return self.f_ext
+        mesh = self.solid.mesh
+        per_element = jnp.einsum("psq,sqa->psa", quad.weights, jnp.asarray(mesh.basis_values))
+        area = jnp.zeros(mesh.n_points, per_element.dtype).at[mesh.elem_points].add(per_element)
+        return self.f_ext + (area[:, None] * self.body).reshape(-1)
+
+    def external_free(self, quad):
+        """The dead load's free rows (f_free without a body force)."""
+        return self.f_free if self.body is None else self.external_force(quad)[self.free]
 
     def full(self, u_free, u_dir):
         """Every control point's displacement from the free DOFs and the prescribed ones."""
@@ -74,7 +91,7 @@ class Equations:
         its inertia term)."""
         u = self.full(u_free, u_dir)
         potential = strain_energy(self.solid, quad, u, mat) - load * jnp.dot(
-            self.f_ext, u.reshape(-1)
+            self.external_force(quad), u.reshape(-1)
         )
         if inertia is not None:
             potential = potential + inertia.energy(self.edofs[: self.elements], u.reshape(-1))
@@ -93,14 +110,14 @@ class Equations:
         energy, force, kel = energy_force_tangents(
             self.solid, quad, u, mat, contact_normal, self.contact_slots
         )
-        potential = energy - load * jnp.dot(self.f_ext, u.reshape(-1))
+        potential = energy - load * jnp.dot(self.external_force(quad), u.reshape(-1))
         force = force.reshape(-1)
         if inertia is not None:
             edofs = self.edofs[: self.elements]
             potential = potential + inertia.energy(edofs, u.reshape(-1))
             force = force + inertia.force(edofs, u.reshape(-1))
             kel = kel._replace(elements=kel.elements + inertia.blocks)
-        return potential, force[self.free] - load * self.f_free, kel
+        return potential, force[self.free] - load * self.external_free(quad), kel
 
     def blocks(self, kel: Tangents):
         """(dofs (B, 18), blocks (B, 18, 18)) of the elements, then of the contact slots (an empty

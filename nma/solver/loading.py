@@ -49,7 +49,11 @@ def step_rhs(eqs: Equations, p: Problem, s: State, g, kel):
     consistent linearised response to the next load increment; a corrector's -g."""
     return jnp.where(
         s.predictor,
-        -(g + eqs.coupling(kel, s.dlam * (p.u_D - p.u_D0)) - s.dlam * (1.0 - p.load0) * eqs.f_free),
+        -(
+            g
+            + eqs.coupling(kel, s.dlam * (p.u_D - p.u_D0))
+            - s.dlam * (1.0 - p.load0) * eqs.external_free(p.quad)
+        ),
         -g,
     )
 

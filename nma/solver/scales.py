@@ -15,7 +15,8 @@ def _scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel):
     """The tolerance, the stiffness scale k_ref and the force scale f_ref, from the element tangents
     at rest: f_ref the norm of the linearised out-of-balance force of the full load, k_ref the
     largest diagonal entry."""
-    f_ref = norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + norm(eqs.f_free)
+    f_free = eqs.external_free(p.quad)
+    f_ref = norm(eqs.coupling(kel, p.u_D) - f_free) + norm(f_free)
     return _tolerance(eqs, opts, p, kel, f_ref)
 
 
@@ -25,7 +26,8 @@ def _step_scales(eqs: Equations, opts: NewtonOptions, p: Problem, kel, g0):
     previous state's residual under this step's inertia, and the boundary's move), plus the static
     solve's force scale of the actuation at its end: a step meets at least the test a static solve
     of that actuation meets."""
-    static = norm(eqs.coupling(kel, p.u_D) - eqs.f_free) + norm(eqs.f_free)
+    f_free = eqs.external_free(p.quad)
+    static = norm(eqs.coupling(kel, p.u_D) - f_free) + norm(f_free)
     return _tolerance(eqs, opts, p, kel, norm(g0 + eqs.coupling(kel, p.u_D - p.u_D0)) + static)
 
 
