@@ -116,7 +116,7 @@ def main() -> None:
         print(json.dumps(rows[-1]), flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
-    ms = lambda s: f"{1e3 * s['min']:.1f} / {1e3 * s['median']:.1f}"  # noqa: E731
+    ms = lambda s: f"{1e3 * s['min']:.1f} / {1e3 * s['median']:.1f}"
     table = [
         "| scene | dofs | elements | chunked (ms, min / median) | whole | median ratio | largest "
         "difference (relative) |",

@@ -1,7 +1,6 @@
-"""What an option costs: solve and gradient time with it off and on, per paper scene.  The options:
-the
-pores' self-contact (contact=off / on) and Newton's element bound (solver.element_bound=false /
-true).
+"""What an option costs: solve and gradient time with it off and on, per paper scene.  The
+options: the pores' self-contact (contact=off / on) and Newton's element bound
+(solver.element_bound=false / true).
 
     # contact, every scene -> outputs/bench/contact.{json,md}
     python experiments/bench_options.py

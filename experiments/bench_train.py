@@ -192,10 +192,8 @@ def breakdown(results: dict) -> str:
 def table(results: dict) -> str:
     rows = [
         "| scene | dofs | batch | step s (min / median), threads | one thread | speedup | CPU use "
-        "| "
-        "warm starts: step s | Newton iterations per sample, cold / warm | audits on the cold "
-        "equilibrium | "
-        "first step s | 2nd process first step s |",
+        "| warm starts: step s | Newton iterations per sample, cold / warm | audits on the cold "
+        "equilibrium | first step s | 2nd process first step s |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scene, r in results.items():
@@ -208,8 +206,7 @@ def table(results: dict) -> str:
         rows.append(
             f"| {scene} | {r['dofs']} | {r['batch_size']} | {t['min']:.3f} / {t['median']:.3f} "
             f"({r['workers']} threads) | {o['min']:.3f} / {o['median']:.3f} | {r['speedup']:.2f}x "
-            "| "
-            f"{r['threads']['cpu_utilisation']:.2f} cores | {w['min']:.3f} / {w['median']:.3f} "
+            f"| {r['threads']['cpu_utilisation']:.2f} cores | {w['min']:.3f} / {w['median']:.3f} "
             f"({r['warm_speedup']:.2f}x) | {r['threads']['newton_iterations_per_sample']:.1f} / "
             f"{r['warm']['newton_iterations_per_sample']:.1f} | {ws['audits_same']} of "
             f"{ws['audits']}"

@@ -28,14 +28,13 @@ convergence p and a Richardson estimate of the reference's own error, |q11 - q14
 points, tolerance 1e-12): the order from each three successive levels (the same p twice says the
 ladder is in the asymptotic range, where Richardson's estimate holds), the Richardson limit q* = q17
 + (q17 - q14) / ((h14/h17)^p - 1) per draw and component, and the error of the settings runs train
-at (5 x 2: the reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against the 14
-x 5 reference and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.  Every state
-is checked (nma.geometry.validity): a converged state that cannot exist (material inverted between
-Gauss points, walls through each other) is named, and the orders are taken again over the draws
-physical at every level.  The radii gradient's convergence is also split by where each radius acts:
-the corner radii by
-the pore's angle at their corner (the sharper, the more singular the stress there), the side radii
-next to a corner and mid-side.
+at (5 x 2: the reproductions, 8 x 2: fidelity=auto's usual pick, 5 x 5: the paper's) against the
+14 x 5 reference and against q*: outputs/studies/fidelity/<scene>.convergence.{json,md}.  Every
+state is checked (nma.geometry.validity): a converged state that cannot exist (material inverted
+between Gauss points, walls through each other) is named, and the orders are taken again over the
+draws physical at every level.  The radii gradient's convergence is also split by where each radius
+acts: the corner radii by the pore's angle at their corner (the sharper, the more singular the
+stress there), the side radii next to a corner and mid-side.
 
 Writes outputs/studies/fidelity/<scene>.{json,md,png} (the png: time against error, log-log, the
 Pareto front marked) and the measured front that `fidelity=auto` reads,
@@ -558,8 +557,7 @@ def nonphysical_lines(said: str, found: list[tuple[str, dict]]) -> list[str]:
     return [
         "",
         "States the solver converged to that cannot exist (nma.geometry.validity: material "
-        "inverted "
-        f"between Gauss points, walls through each other); {said}:",
+        f"inverted between Gauss points, walls through each other); {said}:",
         "",
     ] + [f"- {setting}, draw {d['draw']}: {'; '.join(d['problems'])}" for setting, d in found]
 
@@ -603,8 +601,7 @@ def convergence_report(result: dict, out: Path) -> str:
         f"{result['quad_points']} Gauss points (tolerance {REFERENCE[2]:g}), {result['draws']} "
         "draws.  "
         "Orders from each three successive levels (e(h) = C h^p, h = 1 / knot spans); the limit "
-        "q* is "
-        "Richardson's from the last two levels with the last order.  Errors: worst over the "
+        "q* is Richardson's from the last two levels with the last order.  Errors: worst over the "
         "draws; "
         "observable in the task's units (max abs), gradients relative to the norm of what they are "
         f"compared with.  Each cell: against the {ref} reference / against q*.",
@@ -644,8 +641,7 @@ def convergence_report(result: dict, out: Path) -> str:
         lines += [
             "",
             "Draws whose solve stopped short at some level, left out of every level above (the "
-            "solver's "
-            f"own words; {len(result['solved_draws'])} of {result['draws']} draws kept: "
+            f"solver's own words; {len(result['solved_draws'])} of {result['draws']} draws kept: "
             f"{', '.join(map(str, result['solved_draws']))}):",
             "",
         ]
@@ -691,8 +687,7 @@ def convergence_report(result: dict, out: Path) -> str:
             "The radii gradient by where each radius acts (the corner radii by the pore's angle "
             "at their "
             "corner: the material around it spans 360 deg minus that, a re-entrant corner), "
-            "differences "
-            "relative to the whole finest gradient:",
+            "differences relative to the whole finest gradient:",
             "",
             "| radii | how many | differences between levels | orders | share of the finest "
             "difference |",
@@ -830,8 +825,7 @@ def report(result: dict, out: Path) -> None:
         ),
         "",
         f"Reference: {ref['ctrl_per_patch']} control points per patch, {ref['quad_points']} Gauss "
-        "points, "
-        f"Newton tolerance {ref['rtol']:g} ({ref['dofs']} dofs, forward + gradient "
+        f"points, Newton tolerance {ref['rtol']:g} ({ref['dofs']} dofs, forward + gradient "
         f"{ref['forward_grad_seconds']['median']:.2f} s). Times: min / median of "
         f"{result['draws']} draws, "
         "seconds. Errors: worst over the draws; gradient: relative norm error / cosine per group. "
@@ -1075,8 +1069,7 @@ def main():
         type=float,
         default=SPREAD,
         help="--convergence: the random design's radii (and corner moves) uniform over this "
-        "central part "
-        f"of their ranges (default {SPREAD}; smaller: rounder pores, blunter corners)",
+        f"central part of their ranges (default {SPREAD}; smaller: rounder pores, blunter corners)",
     )
     ap.add_argument(
         "--actuation",

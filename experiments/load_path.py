@@ -164,8 +164,7 @@ def main():
                 f"| {r['path']} | {r['iterations']} | "
                 f"{r['iterations'] / rows[0]['iterations']:.2f} "
                 f"| {r['load_steps']} | {r['failed']} | {r['metric']:.5g} | {r['same']} of "
-                f"{len(scale)} "
-                f"| {r['largest_difference']:.1e} |"
+                f"{len(scale)} | {r['largest_difference']:.1e} |"
             )
         else:
             lines.append(

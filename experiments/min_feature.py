@@ -125,8 +125,7 @@ def made_part(run: Path, made_of: str, scale: float, thickness: float, out: Path
         f"The bounded part as made: {material.name or made_of} (`material={made_of}`, nu "
         f"{material.nu:g}), "
         f"{thickness:g} mm thick, under the paper's load cases at half the task's largest "
-        "actuation "
-        "(`nma.export load_cases=true`; load_cases.png):",
+        "actuation (`nma.export load_cases=true`; load_cases.png):",
         "",
         f"| load case | pointer moves [mm] | actuators push [{cases['units']['force']}] | "
         "physical |",

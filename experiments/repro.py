@@ -116,8 +116,7 @@ def summarise_digital_mnist(out: Path):
     lines += [
         "",
         f"total {sum(seconds.values()) / 60:.1f} min; figures: lookup/figures/deformed.png (the "
-        "ten "
-        "digits), finetune/figures/deformed.png (held-out images and what the material shows), "
+        "ten digits), finetune/figures/deformed.png (held-out images and what the material shows), "
         "*/figures/colours.png (the colour field)",
     ]
     (out / "comparison.md").write_text("\n".join(lines) + "\n")
@@ -175,10 +174,7 @@ def publish(name: str, out: Path, summary: dict, figures: list[Path]) -> None:
     if out.resolve() != (ROOT / "outputs" / "repro" / name).resolve():
         return
     if not (out / "stamp.json").is_file():
-        print(
-            f"{out}: no stamp.json (runs from before results were stamped): results/{name} not "
-            "written"
-        )
+        print(f"{out}: no stamp.json (runs not made by this script): results/{name} not written")
         return
     again = out / "reevaluated.json"
     report = (out / "comparison.md").read_text()
@@ -259,9 +255,9 @@ def main():
         runs = [(args.name, "joint")] + [(f"{args.name}_{suffix}", run) for suffix, run in later]
         for i, (experiment, run) in enumerate(runs):
             extra = [f"trainer.init_from={out / before}"] if before else []
-            # a later stage fine-tunes this one: its sweep animation supersedes this one's
+            # a later stage fine-tunes this one: its sweep animation supersedes this one's (24
+            # solves, about 20 s at 8 x 2 with contact)
             if i + 1 < len(runs):
-                # (24 solves, about 20 s at 8 x 2 with contact)
                 extra.append("trainer.animation_frames=0")
             seconds[run] = train(experiment, out / run, [*extra, *args.overrides])["wall_seconds"]
             before = run
@@ -291,7 +287,7 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
     seconds = json.loads((out / "seconds.json").read_text())
     runs = ("joint", *refinements, "baseline")
     missing = [r for r in runs if r not in seconds or not (out / r / "metrics.json").exists()]
-    # e.g. a directory from before a stage was added: the last stage's design is the one compared
+    # e.g. a directory holding fewer stages than the experiment: its last stage's design is compared
     if missing:
         raise SystemExit(
             f"{out}: no complete run (metrics.json, and its time in seconds.json) for {missing}; "
@@ -307,7 +303,6 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
     total = sum(seconds.values())
     name, unit = joint["metric"], joint["unit"]
     ratio = joint["value"] / baseline["value"]
-    # noqa: E731
     fid = lambda r: (
         f"{r['fidelity']['ctrl_per_patch']} x {r['fidelity']['quad_points']}"
         + (
@@ -317,7 +312,7 @@ def summarise(out: Path, experiment: str, refinements: list[str]):
         )
         + (", contact" if r["fidelity"].get("contact") else "")
     )
-    # noqa: E731  (older runs: unknown)
+    # older runs: unknown
     physical = lambda r: (
         f"{r['invalid_states']} of {r['checked_states']}"
         if "invalid_states" in r

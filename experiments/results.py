@@ -121,7 +121,7 @@ def _row(name: str, label: str) -> str:
         )
         again = f" ({fine['value']:#.3g}{unphysical})"
     unit = "deg" if r["unit"].startswith("deg") else "%" if r["unit"].startswith("%") else ""
-    value = lambda v: f"{v:#.3g}{' ' + unit if unit else ''}"  # noqa: E731
+    value = lambda v: f"{v:#.3g}{' ' + unit if unit else ''}"
     metric = {
         "mean_pointer_error": "mean pointer error (cell = 5)",
         "mean_angle_error_deg": "mean angle error",

@@ -8,7 +8,7 @@ defaults (what `material=<law>` picks).
     python experiments/settings_reference.py --check    # exits 1 where one of them differs
 
 tests/test_docs.py checks that the page is what this script writes from today's schema, and
-tests/test_laws.py that the laws' files are.
+tests/test_law_modules.py that the laws' files are.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from nma.schema import (
     SolverConfig,
     TrainerConfig,
 )
-from nma.mechanics.laws import law_names, law_of
+from nma.mechanics.laws import builtin, law_names, law_of
 from nma.schema.commands import FitConfig, OutputConfig
 from nma.settings import Schema
 from nma.tasks.schemas import TASK_SCHEMAS
@@ -161,7 +161,7 @@ def key(name: str) -> str:
 def laws() -> str:
     """The Material laws section: each law's psi and its parameters, from its declaration."""
     parts = [LAWS]
-    for name in law_names():
+    for name in filter(builtin, law_names()):
         law = law_of(name)
         table = ["| setting | default | allowed | unit | meaning |", "|---|---|---|---|---|"]
         for p in type(law).parameters:
@@ -212,7 +212,9 @@ def material_file(name: str) -> str:
 
 def material_files() -> dict[Path, str]:
     """Each law's material file, and None for a file written here before whose law is gone."""
-    files = {MATERIALS / f"{name}.yaml": material_file(name) for name in law_names()}
+    files = {
+        MATERIALS / f"{name}.yaml": material_file(name) for name in law_names() if builtin(name)
+    }
     stale = {
         p: None for p in MATERIALS.glob("*.yaml") if p not in files and WRITTEN in p.read_text()
     }

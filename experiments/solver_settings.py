@@ -2,8 +2,8 @@
 against trust region) or its element bound (off against on).
 
     python experiments/solver_settings.py --nus 0.499 --out outputs/studies/correctors
-    python experiments/solver_settings.py --setting element_bound --nus 0.3 --out
-    outputs/studies/element_bound
+    python experiments/solver_settings.py --setting element_bound --nus 0.3 \\
+        --out outputs/studies/element_bound
 
 For every cell of experiments/stability_map.py at the given Poisson's ratios (the same designs, seed
 and actuations, the paper's 5 x 5, PARDISO, without contact), solves once with each value, one after
@@ -129,8 +129,7 @@ def table(records: list[dict], setting: str = "corrector") -> list[str]:
     values = [label(setting, v) for v in SETTINGS[setting]]
     lines = [
         f"| scene | converged: {' / '.join(values)} | iterations, all solves | seconds, all "
-        "solves | "
-        "both converged: same equilibrium | saddles | physical of the converged |",
+        "solves | both converged: same equilibrium | saddles | physical of the converged |",
         "|---|---|---|---|---|---|---|",
     ]
     scenes = list(dict.fromkeys(r["scene"] for r in records))
@@ -144,7 +143,7 @@ def table(records: list[dict], setting: str = "corrector") -> list[str]:
         saddles = {c: sum(bool(r[c]["negative_eigenvalues"]) for r in rs) for c in values}
         # earlier files: no field
         physical = {c: sum(bool(r[c].get("physical")) for r in rs) for c in values}
-        pair = lambda k, f="{}": " / ".join(f.format(total[k][c]) for c in values)  # noqa: E731
+        pair = lambda k, f="{}": " / ".join(f.format(total[k][c]) for c in values)
         lines.append(
             f"| {scene} | {pair('converged')} of {len(rs)} | {pair('iterations')} | "
             f"{pair('seconds', '{:.1f}')} | "
@@ -161,8 +160,7 @@ def table(records: list[dict], setting: str = "corrector") -> list[str]:
         ]
         lines += [
             f"- {r['scene']}, {r['design']}, nu {r['nu']}, d = {np.round(r['d'], 1).tolist()}: "
-            "difference "
-            f"{r['difference']:.2g}; "
+            f"difference {r['difference']:.2g}; "
             + "; ".join(f"{c} {r[c]['energy']:.6g}, {r[c]['negative_eigenvalues']}" for c in values)
             for r in other
         ]
@@ -183,7 +181,7 @@ def main():
         "--no-element-bound",
         dest="element_bound",
         action="store_false",
-        help="both solves with solver.element_bound=false (the corrector study as it was measured)",
+        help="both solves with solver.element_bound=false (the corrector study unbounded)",
     )
     ap.add_argument(
         "--out",

@@ -4,13 +4,15 @@
     python experiments/stability_map.py
     python experiments/stability_map.py --scenes translation --quick
     python experiments/stability_map.py --contact --out outputs/studies/stability_contact
-    python experiments/stability_map.py --formulation mixed --nus 0.499 --out
-    outputs/studies/stability_mixed python experiments/stability_map.py --corrector trust_region
-    --nus 0.499 --out outputs/studies/stability_trust python experiments/stability_map.py
-    --formulation mixed --inversion-barrier 0.5 --nus 0.499 --out
-    outputs/studies/stability_mixed_barrier python experiments/stability_map.py --formulation mixed
-    --inversion-barrier 0.5 --nus 0.499 --mesh 8 5         --not-physical-in
-    outputs/studies/stability_mixed_barrier --out outputs/studies/stability_mixed_barrier_8x5
+    python experiments/stability_map.py --formulation mixed --nus 0.499 \\
+        --out outputs/studies/stability_mixed
+    python experiments/stability_map.py --corrector trust_region --nus 0.499 \\
+        --out outputs/studies/stability_trust
+    python experiments/stability_map.py --formulation mixed --inversion-barrier 0.5 --nus 0.499 \\
+        --out outputs/studies/stability_mixed_barrier
+    python experiments/stability_map.py --formulation mixed --inversion-barrier 0.5 --nus 0.499 \\
+        --mesh 8 5 --not-physical-in outputs/studies/stability_mixed_barrier \\
+        --out outputs/studies/stability_mixed_barrier_8x5
 
 Per scene, every combination of
   material   nu in {0.3, 0.4, 0.45, 0.49, 0.499} (E = 0.07, the paper's),
@@ -322,8 +324,7 @@ def summarise(result: dict, out: Path) -> None:
         "non-finite values; "
         + (
             f"{s['stopped_inverting']} stopped where the material would invert between Gauss "
-            "points "
-            "(solver.element_bound); "
+            "points (solver.element_bound); "
             if s.get("stopped_inverting")
             else ""
         )
@@ -337,8 +338,7 @@ def summarise(result: dict, out: Path) -> None:
         )
         + ". "
         f"{s['saddles']} converged states are saddles (negative eigenvalues of the Hessian: "
-        "unstable "
-        f"equilibria, e.g. a symmetric path past a buckling point)."
+        f"unstable equilibria, e.g. a symmetric path past a buckling point)."
         + (
             ""
             if s["invalid"] is None
@@ -361,7 +361,7 @@ def summarise(result: dict, out: Path) -> None:
     for i, g in enumerate(geoms):
         lines.append(f"| {g} | " + " | ".join(f"{frac[i, j]:.0%}" for j in range(len(nus))) + " |")
     if failed:
-        # noqa: E731  (older maps)
+        # older maps
         stretch = lambda r: (
             "-" if r.get("min_boundary_stretch") is None else f"{r['min_boundary_stretch']:.3f}"
         )
@@ -379,8 +379,7 @@ def summarise(result: dict, out: Path) -> None:
             lines.append(
                 f"| {r['design']} | {r['nu']} | {np.round(r['d'], 2).tolist()} | {r['status']} | "
                 f"{r['load_reached']:.3f} | {r['residual']:.2e} | {r['iterations']} | "
-                f"{r['seconds']:.2f} | "
-                f"{stretch(r)} |"
+                f"{r['seconds']:.2f} | {stretch(r)} |"
             )
     (out / f"{result['scene']}.md").write_text("\n".join(lines) + "\n")
 
@@ -465,7 +464,7 @@ def main():
         dest="element_bound",
         action="store_false",
         help="solver.element_bound=false: Newton steps on where the material inverts between Gauss "
-        "points (the maps before the bound was the default; write to a separate --out)",
+        "points (maps without the bound; write to a separate --out)",
     )
     ap.add_argument(
         "--inversion-barrier",
@@ -487,8 +486,7 @@ def main():
         type=Path,
         metavar="DIR",
         help="solve only the cells whose converged state was not a physical object in the map in "
-        "DIR "
-        "(with --mesh: do they hold on a finer mesh?)",
+        "DIR (with --mesh: do they hold on a finer mesh?)",
     )
     args = ap.parse_args()
     if args.replot:

@@ -72,8 +72,7 @@ def audit(name: str, init_from: str | None, steps: int) -> dict:
 def table(results: dict) -> str:
     rows = [
         "| run | from | steps | warm solves | on the cold equilibrium (1e-6 / 1e-8) | the others: "
-        "warm energy "
-        "lower | largest difference | Newton iterations per solve, warm / cold |",
+        "warm energy lower | largest difference | Newton iterations per solve, warm / cold |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():

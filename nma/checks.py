@@ -38,8 +38,7 @@ def array(
         value = jnp.asarray(value)
     except TypeError:
         raise TypeError(
-            f"{where}: {name} must be an array of shape {_shown(shape)} of real "
-            "numbers, "
+            f"{where}: {name} must be an array of shape {_shown(shape)} of real numbers, "
             f"got {type(value).__name__} {value!r:.80}"
         ) from None
     if len(value.shape) != len(shape) or any(

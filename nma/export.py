@@ -1,7 +1,7 @@
 """A trained design as a file to make it from, and the numbers a fabricator checks first.
 
-    python -m nma.export run=outputs/runs/translation/<date>_<time> format=svg|dxf|stl [scale=2]
-    [thickness=10]
+    python -m nma.export run=outputs/runs/translation/<date>_<time> format=svg|dxf|stl \\
+        [scale=2] [thickness=10]
 
 Writes <run>/export/design.<format> (or `output=`) and fabrication.json beside it, and prints the
 report as one JSON line on stdout.  Lengths are in millimetres: `scale` millimetres per length unit
@@ -276,8 +276,7 @@ def write_load_cases(
     )
     fig.suptitle(
         f"the learned part{made} under the paper's load cases\n(grey: undeformed; blue: deformed; "
-        "red: "
-        "deformed but not a physical object; green: the pointer's move)",
+        "red: deformed but not a physical object; green: the pointer's move)",
         fontsize=10,
     )
     fig.tight_layout()

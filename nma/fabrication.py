@@ -121,8 +121,7 @@ def write_stl(outline: Outline, path: Path, thickness: float, samples: int) -> f
     if not mesh.is_watertight:
         raise ConfigError(
             f"the extruded mesh of {path.name} is not watertight at thickness={thickness:g} and "
-            "this "
-            f"scale: choose a thickness and scale nearer the part's own size"
+            f"this scale: choose a thickness and scale nearer the part's own size"
         )
     mesh.export(path)
     return float(mesh.volume)

@@ -75,7 +75,7 @@ def holds(spec: SceneSpec) -> dict:
     that the same body listed in another order is held the same): its pinned points, supports
     (segment, fixed components) and actuated segments (actuation, segment, direction); and where its
     pores' corners are round (they converge faster, so the errors differ), that too."""
-    pt = lambda p: [float(p[0]), float(p[1])]  # noqa: E731
+    pt = lambda p: [float(p[0]), float(p[1])]
     return {
         "pinned": sorted(pt(p) for p in spec.pinned),
         "supports": sorted(
@@ -167,8 +167,7 @@ def choose(scene: str | SceneSpec, tolerance: float, data: Path = DATA) -> Choic
         best = min(rows, key=lambda r: r["gradient_error"])
         raise ConfigError(
             f"fidelity.tolerance must be at least {best['gradient_error']:.3g} for scene {scene}, "
-            "the "
-            f"smallest gradient error measured ({best['ctrl_per_patch']} control points, "
+            f"the smallest gradient error measured ({best['ctrl_per_patch']} control points, "
             f"{best['quad_points']} Gauss points), got {tolerance}"
         )
     ref = front["reference"]
@@ -176,8 +175,7 @@ def choose(scene: str | SceneSpec, tolerance: float, data: Path = DATA) -> Choic
         f"fidelity=auto chose {pick['ctrl_per_patch']} control points per patch, "
         f"{pick['quad_points']} Gauss "
         f"points ({pick['dofs']} dofs) for scene {scene} ({path.name}): the fastest measured "
-        "setting "
-        f"({pick['forward_grad_seconds']['median']:.3g} s forward + gradient on "
+        f"setting ({pick['forward_grad_seconds']['median']:.3g} s forward + gradient on "
         f"{front['machine']['cpus']} "
         f"cores) whose gradient error {pick['gradient_error']:.3g} (cosine "
         f"{pick['gradient_cosine']:.4f}) "
@@ -233,8 +231,7 @@ def resolve(
             f"fidelity.ctrl_per_patch={fidelity.ctrl_per_patch} with {fidelity.quad_points} Gauss "
             "points "
             f"needs at least {need / 2**30:.0f} GiB for scene {scene.name} (the element tangents "
-            "and "
-            f"quadrature tables of one state), more than this machine's {have / 2**30:.0f} GiB"
+            f"and quadrature tables of one state), more than this machine's {have / 2**30:.0f} GiB"
         )
     return fidelity
 

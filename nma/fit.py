@@ -85,8 +85,7 @@ def read(path, strain_column: str, stress_column: str, mode: str, max_strain: fl
     if found is None:
         raise ConfigError(
             f"data={path}: no row names both columns strain_column={strain_column!r} "
-            f"and stress_column={stress_column!r} (cells split by a comma, semicolon "
-            "or tab)"
+            f"and stress_column={stress_column!r} (cells split by a comma, semicolon or tab)"
         )
     rows, head, delimiter = found
     names = [c.strip() for c in rows[head]]
@@ -150,8 +149,7 @@ def _curve(path, stress_column, upto, modes, strains, stresses):
     if distinct < 3:
         raise ConfigError(
             f"data={path}: {len(strains)} rows at {distinct} distinct "
-            f"strain{'s' * (distinct != 1)}{upto}; a fit needs the stress at at "
-            "least 3"
+            f"strain{'s' * (distinct != 1)}{upto}; a fit needs the stress at at least 3"
         )
     if np.ptp(stresses) == 0:
         raise ConfigError(
@@ -235,8 +233,7 @@ def fit(cfg: FitConfig) -> dict:
     if distinct < len(law.names):
         raise ConfigError(
             f"data={cfg.data}: {distinct} distinct points; {what} has "
-            f"{len(law.names)} parameters {list(law.names)}, which need at least as "
-            "many"
+            f"{len(law.names)} parameters {list(law.names)}, which need at least as many"
         )
     i1_max = max(
         float(np.max(np.sum(np.asarray(mode_stretches(m, stretches[modes == m])) ** 2, axis=0)))

@@ -59,8 +59,7 @@ class Registry(Generic[T]):
             except (ImportError, AttributeError) as exc:
                 raise ConfigError(
                     f"{self.kind} {name} is declared as {self._items[name]!r}, which does not "
-                    "import: "
-                    f"{type(exc).__name__}: {exc}"
+                    f"import: {type(exc).__name__}: {exc}"
                 ) from None
             self._items[name] = factory
         return factory

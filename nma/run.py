@@ -60,7 +60,7 @@ def train(s: TrainConfig, run_dir: Path, config: dict, stop=None) -> dict:
         log.info("material.nu = %g is nearly incompressible: %s", s.material.nu, describe_model(s))
     on_eval = None
     if s.trainer.fields == "all":  # fields/step_<n>/ at every evaluation
-        on_eval = lambda ev: artefacts.write_eval_fields(  # noqa: E731
+        on_eval = lambda ev: artefacts.write_eval_fields(
             run_dir / "fields" / f"step_{ev.record['step']:07d}",
             sim,
             ev,

@@ -183,8 +183,7 @@ def main() -> None:
         if out.is_dir() and any(p.name != cli.RUN_LOCK for p in out.iterdir()):
             raise ConfigError(
                 f"hydra.run.dir={out} holds files already: nma.simulate writes a directory of its "
-                "own "
-                f"(without hydra.run.dir each solve gets a new one)"
+                f"own (without hydra.run.dir each solve gets a new one)"
             )
 
     cli.preflight("simulate", check, sys.argv[1:])

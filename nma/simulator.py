@@ -254,8 +254,7 @@ class Simulator:
         if jnp.ndim(ds) != 2 or jnp.shape(ds)[1] != self.n_actuations:
             raise ValueError(
                 f"equilibrium_batch: ds must have shape (n, {self.n_actuations}), a row of "
-                "actuations "
-                f"per sample, got {jnp.shape(ds)}"
+                f"actuations per sample, got {jnp.shape(ds)}"
             )
         return jax.vmap(lambda d: self.equilibrium(X, d, mat))(ds)
 

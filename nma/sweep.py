@@ -132,8 +132,7 @@ def summarise(sweep_dir: Path) -> dict:
         rest = "" if j.get("no_actuation") is None else f"{j['no_actuation']:.4g}"
         lines.append(
             f"| {j['job']} | {' '.join(j['overrides'])} | {j.get('metric') or ''} | {value} | "
-            f"{solves} | "
-            f"{rest} | {j.get('steps') or ''} |"
+            f"{solves} | {rest} | {j.get('steps') or ''} |"
         )
     (sweep_dir / "summary.md").write_text("\n".join(lines) + "\n")
     return body

@@ -182,8 +182,7 @@ def test_a_run_trained_before_the_inversion_penalty_is_told_to_add_it_off():
     assert "trainer.inversion_penalty: 0.0 -> 0.1" in str(both.value)
     assert (
         "(it trained at the paper's 5 x 5: add fidelity=paper; it trained without the inversion "
-        "penalty: add "
-        "trainer.inversion_penalty=0)"
+        "penalty: add trainer.inversion_penalty=0)"
     ) in str(both.value)
     other_penalty = copy.deepcopy(before)
     other_penalty["trainer"].update(inversion_penalty=0.2, inversion_margin=0.2)
@@ -298,7 +297,7 @@ def test_a_run_with_warm_starts_resumes_to_the_uninterrupted_run(tmp_path):
     trainer(tmp_path / "stopped", 2).fit()
     resumed = trainer(tmp_path / "stopped", 4, "trainer.resume=true")
     resumed.fit()
-    leaves = lambda t: jax.tree_util.tree_leaves(t.state["params"])  # noqa: E731
+    leaves = lambda t: jax.tree_util.tree_leaves(t.state["params"])
     for a, b in zip(leaves(whole), leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert resumed.sim.warm_starts.verdict == whole.sim.warm_starts.verdict == (stats["audits"], 0)

@@ -523,8 +523,7 @@ def test_every_job_of_a_sweep_is_checked_first(tmp_path, monkeypatch, capsys):
     code, err = call(run.main, argv, monkeypatch, capsys)
     assert code == 2 and err.strip().splitlines() == [
         f"error: scene translation: tracked point pointer at ({p}, {p}) lies in no patch (in 1 of "
-        "3 jobs, e.g. "
-        f"scene.tracked.pointer=[{p},{p}])"
+        f"3 jobs, e.g. scene.tracked.pointer=[{p},{p}])"
         for p in ("2.5", "7.5")
     ], err
     assert not (tmp_path / "sweep").exists()

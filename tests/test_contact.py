@@ -190,7 +190,7 @@ def test_force_and_tangent_against_central_differences(cell, touching):
     disc = sim.disc
     quad = quadrature(disc.solid, X)
     model, walls, mu = disc.contact, quad.walls, MAT[0] / (2 * (1 + MAT[1]))
-    energy = lambda x: contact.energy(model, walls, x, mu)  # noqa: E731
+    energy = lambda x: contact.energy(model, walls, x, mu)
     e, force, blocks, which, near = contact.force_and_blocks(model, walls, X + u, mu)
     assert float(e) > 0 and float(e) == pytest.approx(float(energy(X + u)), rel=1e-12)
     # the near blocks fill the first slots, in order; the rest are empty (-1, zero)
@@ -216,7 +216,7 @@ def test_force_and_tangent_against_central_differences(cell, touching):
             dofs,
             np.einsum("eab,eb->ea", np.asarray(blocks)[:near], np.asarray(v).reshape(-1)[dofs]),
         )
-        f = lambda x: contact.force_and_blocks(model, walls, x, mu)[1]  # noqa: E731
+        f = lambda x: contact.force_and_blocks(model, walls, x, mu)[1]
         fd_K = (f(X + u + h * v) - f(X + u - h * v)).reshape(-1) / (2 * h)
         np.testing.assert_allclose(Kv, fd_K, rtol=1e-5, atol=1e-7 * np.abs(fd_K).max())
     # the tangents: the elastic blocks (bit for bit those of the same scene without contact), then
@@ -316,7 +316,7 @@ def test_far_from_equilibrium_newton_takes_normal_stiffness_and_ends_as_exact_do
     np.testing.assert_array_equal(which_n, which)
     assert float(e_n) == float(e)
     np.testing.assert_array_equal(force_n, force)
-    lowest = lambda blocks: np.linalg.eigvalsh(np.asarray(blocks)).min(axis=1)  # noqa: E731
+    lowest = lambda blocks: np.linalg.eigvalsh(np.asarray(blocks)).min(axis=1)
     scale = float(np.abs(np.asarray(exact)).max())
     # the exact blocks are indefinite in this touching state
     assert lowest(exact).min() < -1e-3 * scale

@@ -93,12 +93,10 @@ def test_the_nearest_patches_read_what_every_candidate_point_reads(task, monkeyp
     d = jnp.asarray(np.random.default_rng(0).uniform(-t.d_max, t.d_max, (3, sim.n_actuations)))
     u, info = sim.equilibrium_batch(X, d, material(0.07, 0.3))
     assert np.all(np.asarray(info.status) == 1)
-    # noqa: E731
     every = lambda x, c: t.display.scores_of(t.display.positions(x), t.display.colours(c))
-    # noqa: E731
     nearest = lambda x, c: t.display.scores_nearest(x, t.display.positions(x), t.display.colours(c))
     weights = jnp.arange(1.0, 8.0)
-    grad = lambda f: jax.jit(jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1)))  # noqa: E731
+    grad = lambda f: jax.jit(jax.grad(lambda x, c: weights @ f(x, c), argnums=(0, 1)))
     for ui in u:
         x = X + ui
         assert float(nearest(x, colours)[1]) < np.log(colour_display.EXCLUDED_WEIGHT)

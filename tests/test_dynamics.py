@@ -138,7 +138,7 @@ def test_average_acceleration_conserves_a_linear_systems_energy(beam):
     edofs = eqs.edofs[: eqs.elements]
     scheme, dt = Scheme.of("newmark"), 2 * np.pi / omega[0] / 7
     free = np.asarray(eqs.free)
-    K_apply = lambda x: _apply(kel.elements, edofs, x)  # noqa: E731
+    K_apply = lambda x: _apply(kel.elements, edofs, x)
     none = (jnp.zeros((0, 18, 18)), jnp.zeros(0, int), jnp.asarray(0))
     rng = np.random.default_rng(0)
     u = np.zeros(2 * sim.disc.mesh.n_points)
@@ -350,7 +350,7 @@ def test_adjoint_through_time_matches_central_differences(block):
         mat * rng.normal(size=2),
     )
     h = 1e-7
-    moved = lambda s: [x + s * d for x, d in zip(x0, direction)]  # noqa: E731
+    moved = lambda s: [x + s * d for x, d in zip(x0, direction)]
     (plus, (_, i_plus)), (minus, (_, i_minus)) = run(*moved(h)), run(*moved(-h))
     assert int(i_plus.cuts) == int(i_minus.cuts) == 0
     along = sum(float(jnp.sum(g * d)) for g, d in zip(grads, direction))

@@ -95,7 +95,7 @@ def test_auto_reads_the_front_of_the_scene_held_as_the_run_holds_it(known_front)
     ):
         body = {**paper, "holds": holds(spec), "settings": rows}
         (known_front / name).write_text(json.dumps(body))
-    toy = lambda spec: dataclasses.replace(spec, name="toy")  # noqa: E731
+    toy = lambda spec: dataclasses.replace(spec, name="toy")
     assert holds(shipped)["pinned"] and not holds(unpinned)["pinned"]
     assert (
         choose(toy(shipped), 0.4, known_front).fidelity.ctrl_per_patch,

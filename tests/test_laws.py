@@ -293,7 +293,7 @@ def test_stress_is_differentiable_in_every_parameter(law):
     solve)."""
     model, p = material(law, CASES[law])
     F, G = jnp.array([[1.3, 0.2], [-0.1, 0.9]]), jnp.array([[0.3, -0.7], [0.5, 1.1]])
-    f = lambda q: jnp.sum(model.point_terms(q)[1](F) * G)  # noqa: E731
+    f = lambda q: jnp.sum(model.point_terms(q)[1](F) * G)
     g = np.asarray(jax.grad(f)(p))
     for k in range(len(p)):
         h = 1e-6 * abs(float(p[k]))

@@ -95,8 +95,7 @@ PRESS = {"name": "press", "segment": [[0, 2], [0, 8]], "actuation": 0, "directio
                 "groups": [{**PRESS, "segment": [[5, 0], [5, 5]]}],
             },
             r"scene.groups of group press \[\[5, 0\], \[5, 5\]\] must lie on the material's outer "
-            r"boundary; "
-            r"between 0 and 5 it has material on both sides",
+            r"boundary; between 0 and 5 it has material on both sides",
         ),
         (
             {

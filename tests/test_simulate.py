@@ -229,8 +229,7 @@ def test_simulate_serves_the_dense_backend_static_and_in_time(tmp_path):
         (
             ["material.E=1e30", "material.density=1e-30"],
             "material.density must be in [3.85e-11, 1e+30] for this material: its shear modulus "
-            "3.85e+29 "
-            "over the density",
+            "3.85e+29 over the density",
         ),
         (
             [

@@ -469,7 +469,7 @@ def test_trust_region_ratio_of_a_quadratic_energy_is_one_and_round_off_is_taken(
     rng = np.random.default_rng(0)
     A = rng.standard_normal((6, 6))
     K, g = A @ A.T + 6 * np.eye(6), rng.standard_normal(6)
-    energy = lambda u: jnp.dot(g, u) + 0.5 * u @ K @ u  # noqa: E731
+    energy = lambda u: jnp.dot(g, u) + 0.5 * u @ K @ u
     step = -np.linalg.solve(K + 0.3 * np.eye(6), g)  # a shifted Newton step from u = 0
     for a in (1.0, 0.4):
         _, ok, ratio = _trust_region(energy, jnp.zeros(6), step, 0.0, g @ step, step @ K @ step, a)
@@ -480,7 +480,7 @@ def test_trust_region_ratio_of_a_quadratic_energy_is_one_and_round_off_is_taken(
     )
     assert not bool(ok) and float(ratio) < 0
     # at E0 = 1e6 a step predicted to lower it by 1e-9 is round-off: taken, agreement 1
-    E = lambda u: 1e6 + 1e-9 * energy(u) / abs(float(energy(step)))  # noqa: E731
+    E = lambda u: 1e6 + 1e-9 * energy(u) / abs(float(energy(step)))
     _, ok, ratio = _trust_region(
         E,
         jnp.zeros(6),

@@ -192,7 +192,7 @@ def test_a_force_goal_reads_what_the_actuation_pushes_with(simulator):
     X = tight.reference_points(p)
     d = jnp.asarray(d)
     h = jnp.zeros_like(d).at[0].set(1e-4)
-    energy = lambda d: tight.energy(X, tight.solve(p, d, MAT).u, MAT)  # noqa: E731
+    energy = lambda d: tight.energy(X, tight.solve(p, d, MAT).u, MAT)
     reaction = float(task.observe(tight, p, X, tight.solve(p, d, MAT).u, MAT)[0])
     # pytest.approx takes Python numbers
     central = float((energy(d + h) - energy(d - h)) / (2 * h[0]))

@@ -60,8 +60,7 @@ def _refuse_clashes(mine: Path, what: str) -> None:
     if clashes:
         raise ConfigError(
             f"{what}: {', '.join(clashes)} has the name of a config nma ships "
-            "(conf/), which would be read in its place: give yours a name of its "
-            "own"
+            "(conf/), which would be read in its place: give yours a name of its own"
         )
 
 

@@ -51,8 +51,7 @@ def preflight(config_name: str, check: Callable, argv: list[str], rank: int = 0)
                     raise ConfigError(
                         f"hydra.sweep.subdir={subdir} is the directory of job "
                         f"{subdirs[subdir]} and of job {num}: each job needs its "
-                        f"own (the default, ${{hydra.job.num}}, gives each its "
-                        f"number)"
+                        f"own (the default, ${{hydra.job.num}}, gives each its number)"
                     )
                 check(without_hydra(cfg), cfg.hydra, args.multirun)
                 if not args.multirun:

@@ -88,8 +88,7 @@ def lowest_at_rest(sim, X, mat, density) -> float:
     except ModalFailure as err:
         raise SolverError(
             f"dynamics: the lowest natural frequency at rest could not be computed "
-            f"({err}); it sets dynamics.dt and dynamics.ramp where they are "
-            f"null"
+            f"({err}); it sets dynamics.dt and dynamics.ramp where they are null"
         ) from None
     if not omega > 0:
         raise SolverError(

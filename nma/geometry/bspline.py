@@ -126,10 +126,9 @@ def element_tables(n_ctrl: int, quad: int, grading: float = 1.0):
     return _tables(n_ctrl, grading, *gauss_legendre_01(quad))
 
 
-# per span and direction: where det F of a quadratic map is a
+# per span and direction: where det F of a quadratic map is a polynomial of bidegree (3, 3)
+# determined by its values (nma/geometry/validity.py), corners included
 CHECK_POINTS = np.linspace(0.0, 1.0, 4)
-# polynomial of bidegree (3, 3) determined by its values (nma/geometry/validity.py), corners
-# included
 
 
 @lru_cache(maxsize=None)

@@ -211,13 +211,13 @@ class StateChecker:
         E = values.shape[1]
         ref = np.broadcast_to(self.ref_dets.reshape(1, E, 4, 4), values.shape).reshape(-1, 4, 4)
         values = values.reshape(-1, 4, 4)
-        # noqa: E731  (J where the reference is a map)
+        # J where the reference is a map
         ratio = lambda a, b: a / np.where(b > 0, b, np.nan)
         # the smallest det F of each element so far (its 4 x 4 points, then its subdivisions'
         # corners)
         element_J = np.nanmin(ratio(values, ref).reshape(n * E, 16), axis=1)
         bad = np.any(values <= 0, axis=(1, 2))
-        bern = lambda v: _TO_BERNSTEIN @ v @ _TO_BERNSTEIN.T  # noqa: E731
+        bern = lambda v: _TO_BERNSTEIN @ v @ _TO_BERNSTEIN.T
         coeffs = bern(values)
         owner = np.flatnonzero(~bad & (coeffs.min(axis=(1, 2)) <= 0))
         pieces, ref_pieces = coeffs[owner], bern(ref[owner])
@@ -227,7 +227,6 @@ class StateChecker:
         for _ in range(SUBDIVISIONS):
             if not len(pieces):
                 break
-            # noqa: E731
             split = lambda c: np.concatenate([a @ c @ b.T for a in (lo, hi) for b in (lo, hi)])
             pieces, ref_pieces, owner = split(pieces), split(ref_pieces), np.tile(owner, 4)
             np.fmin.at(
@@ -239,7 +238,7 @@ class StateChecker:
             pieces, ref_pieces, owner = pieces[still], ref_pieces[still], owner[still]
         open_ = np.zeros_like(bad)
         open_[owner] = True
-        per_state = lambda flags: flags.reshape(n, -1).sum(axis=1)  # noqa: E731
+        per_state = lambda flags: flags.reshape(n, -1).sum(axis=1)
         element_J = element_J.reshape(n, E)
         worst = np.argmin(np.where(np.isnan(element_J), np.inf, element_J), axis=1)
         return element_J[np.arange(n), worst], worst, per_state(bad), per_state(open_ & ~bad)
@@ -308,7 +307,7 @@ def summarise(records: list[Validity | None]) -> dict:
     how many were checked and not valid, the smallest det F, the smallest gap and the boundary's
     smallest stretch along itself (None if unknown)."""
     done = [r for r in records if r is not None]
-    finite = lambda values: min((v for v in values if np.isfinite(v)), default=None)  # noqa: E731
+    finite = lambda values: min((v for v in values if np.isfinite(v)), default=None)
     return {
         "invalid_states": sum(not r.valid for r in done),
         "checked_states": len(done),
@@ -324,8 +323,7 @@ def describe(summary: dict, invalid: dict, contact: bool = False, limit: int = 3
     first = "; ".join(f"sample {i}: {', '.join(p)}" for i, p in list(invalid.items())[:limit])
     why = (
         "its energy sees det F only at Gauss points, and contact leaves out a wall folding within "
-        "3 "
-        "contact distances of itself"
+        "3 contact distances of itself"
         if contact
         else "the model has no contact (contact=on), and its energy sees det F only at Gauss points"
     )

@@ -49,7 +49,6 @@ def sampler(disc: Discretisation, X, samples: int = 9, compiled: bool = True):
     costs more than compiling once)."""
     X = jnp.asarray(X)
     ref = np.asarray(sample_positions(disc.mesh, X, samples))
-    # noqa: E731
     deformed = lambda u: (
         sample_positions(disc.mesh, X + u, samples),
         sample_jacobian(disc.mesh, X, u, samples),

@@ -206,7 +206,7 @@ def force_and_blocks(
         z = jnp.einsum("bsvezc,bcd->bsvezd", rows, x[pts])
         acts = (blocks >= 0)[:, None, None, None] & _facing(model, walls, own, other)
         w = jnp.where(acts, walls.weights[own][..., None], 0.0)  # (b, 2, k + 1, k)
-        flat = lambda a: a.reshape((-1,) + a.shape[4:])  # noqa: E731  (terms in one axis)
+        flat = lambda a: a.reshape((-1,) + a.shape[4:])  # terms in one axis
         R, Z, W = flat(rows), flat(z), flat(w)
         terms = partial(_term_derivatives, inv_d2=inv_d2, normal=normal)
         # (T,), (T, 3, 2), (T, 3, 2, 3, 2)
@@ -259,7 +259,6 @@ def time_of_impact(model: ContactModel, walls: Walls, x, dx, horizon=jnp.inf) ->
             jnp.stack(jnp.broadcast_arrays(a - p, b - p), -1),
             jnp.stack(jnp.broadcast_arrays(da - dp, db - dp), -1),
         )  # (b, 2, k + 1, k, 2)
-        # noqa: E731
         at = lambda z, dz: (
             z[..., None, :] + jnp.where(jnp.isfinite(t), t, 0.0)[..., None] * dz[..., None, :]
         )

@@ -268,7 +268,7 @@ def _element_terms(quad: Quadrature, ue: jnp.ndarray, point_terms):
     energy, fe, Ke = jax.lax.map(
         lambda x: terms(*x), (split(ue), split(quad.grads), split(quad.weights))
     )
-    unsplit = lambda a: a.reshape((-1,) + a.shape[2:])[:n].reshape(lead + a.shape[2:])  # noqa: E731
+    unsplit = lambda a: a.reshape((-1,) + a.shape[2:])[:n].reshape(lead + a.shape[2:])
     return jnp.sum(energy), unsplit(fe), unsplit(Ke)
 
 

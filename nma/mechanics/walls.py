@@ -89,8 +89,7 @@ def build(
         raise ConfigError(
             f"contact.distance = {settings.distance:g} puts the contact distance at {d_hat:.3g} "
             f"({settings.distance:g} of the median pore's extent), but two walls of a pore face "
-            "each "
-            f"other {gap:.3g} apart at rest; lower contact.distance"
+            f"each other {gap:.3g} apart at rest; lower contact.distance"
         )
     return model
 

@@ -67,16 +67,14 @@ class TrainConfig:
         if self.dynamics.enabled and not in_time:
             raise ConfigError(
                 f"dynamics.scheme={self.dynamics.scheme}: task {self.task.factory} is static (its "
-                "goal is "
-                f"an equilibrium); the tasks in time are in docs/reference/tasks.md"
+                f"goal is an equilibrium); the tasks in time are in docs/reference/tasks.md"
             )
         # a size in mm needs the part's scale
         if self.trainer.min_feature is not None and self.part.scale is None:
             raise ConfigError(
                 f"trainer.min_feature={self.trainer.min_feature} (mm) needs part.scale, the "
                 "millimetres "
-                "per length unit of the scene (e.g. part.scale=2: a paper cell of 5 units is 10 "
-                "mm)"
+                "per length unit of the scene (e.g. part.scale=2: a paper cell of 5 units is 10 mm)"
             )
 
 
@@ -197,8 +195,7 @@ class ExportConfig(Schema):
                 self.fail(
                     "format",
                     f"is {given} but output={self.output} names a .{suffix} file; give one of "
-                    "them, "
-                    "or both agreeing",
+                    "them, or both agreeing",
                 )
             if given is None and suffix not in self.FORMATS:
                 self.fail(

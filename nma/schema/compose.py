@@ -113,8 +113,7 @@ def register() -> None:
     """Put the schemas into Hydra's ConfigStore (idempotent)."""
     from hydra.core.config_store import ConfigStore
 
-    from ..mechanics import laws
-    from ..mechanics.laws import LAWS, law_names
+    from ..mechanics.laws import builtin, law_names
     from ..registry import load_plugins
 
     load_plugins()  # tasks from outside nma bring their schemas
@@ -125,8 +124,8 @@ def register() -> None:
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="fit_schema", node=FitConfig)
     for name in law_names():  # a law from an installed package: material=<name> needs no file
-        if not LAWS.get(name).__module__.startswith(f"{laws.__name__}."):
-            cs.store(group="material", name=name, node=MaterialConfig.of_law(name))
+        if not builtin(name):  # checked with the rest of the command's settings
+            cs.store(group="material", name=name, node=MaterialConfig.fields_of_law(name))
     for name, schema in TASK_SCHEMAS.items():
         # a spec task has no defaults to build an instance from: its class is the node
         cs.store(

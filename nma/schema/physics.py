@@ -40,16 +40,15 @@ class MaterialConfig(Schema):
     E: Optional[float] = bounded(
         _E.default,
         _E.range,
-        doc=f"{_E.doc}: the parameter E of a law "
-        "that takes one (neo_hookean); null for the other laws",
+        doc=f"{_E.doc}: the parameter E of a law that takes one (neo_hookean, "
+        "st_venant_kirchhoff); null for the other laws",
     )
     nu: float = bounded(POISSON.default, POISSON.range, doc=POISSON.doc)
     parameters: Dict[str, float] = field(
         default_factory=dict,
         metadata={
             "doc": "the law's parameters by name (the Material laws section below); none given: "
-            "the "
-            "law's defaults"
+            "the law's defaults"
         },
     )
     unit: Optional[str] = choice(
@@ -79,8 +78,7 @@ class MaterialConfig(Schema):
         DENSITY_RANGE,
         doc="mass per unit area, in the scene's units "
         "(stress x time^2 / length^2): what dynamics and the natural "
-        "frequencies move; the shear modulus over it (a squared wave speed) "
-        "must lie in "
+        "frequencies move; the shear modulus over it (a squared wave speed) must lie in "
         f"{WAVE_SPEED_SQUARED_RANGE}",
     )
     formulation: str = choice(
@@ -137,10 +135,15 @@ class MaterialConfig(Schema):
     def of_law(cls, name: str) -> "MaterialConfig":
         """The material of law `name` with its declared defaults (conf/material/<name>.yaml): a
         parameter that is a field here (E) given there, the others in `parameters`."""
+        return cls(**cls.fields_of_law(name))
+
+    @classmethod
+    def fields_of_law(cls, name: str) -> dict:
+        """of_law's fields, unchecked (what Hydra's store holds for a law without a file)."""
         values, own = law_of(name).defaults(), set(cls.__dataclass_fields__)
         top = {n: values.pop(n) for n in list(values) if n in own}
         stretches = list(law_of(name).stretch_range)
-        return cls(law=name, parameters=values, stretches=stretches, **{"E": None, **top})
+        return dict(law=name, parameters=values, stretches=stretches, **{"E": None, **top})
 
     @property
     def values(self) -> dict:

@@ -172,7 +172,7 @@ class SceneConfig(Schema, SceneChecks):
     def spec(self) -> SceneSpec:
         """The geometry's own description of this scene (nma.geometry.scene); cells bottom row
         first."""
-        pair = lambda v: (float(v[0]), float(v[1]))  # noqa: E731
+        pair = lambda v: (float(v[0]), float(v[1]))
         return SceneSpec(
             name=self.name,
             x_breaks=tuple(self.breaks("x")),

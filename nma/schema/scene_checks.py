@@ -88,8 +88,7 @@ class SceneChecks:
                 "cells",
                 "must be one piece (cells joined through shared edges); the cells at (row, column) "
                 f"{apart[:6]}{' ...' if len(apart) > 6 else ''}, counted from the top left from "
-                "1, are apart "
-                "from the rest",
+                "1, are apart from the rest",
             )
 
     def _check_in_material(self):
@@ -200,8 +199,7 @@ class SceneChecks:
                 if clash and _segment_distance(sa, sb) <= self._tol():
                     raise ConfigError(
                         f"scene.{'groups' if na.startswith('group') else 'supports'}: {na} and "
-                        f"{nb} "
-                        "touch but prescribe different motions where they meet"
+                        f"{nb} touch but prescribe different motions where they meet"
                     )
 
     def _check_held(self):
@@ -232,6 +230,5 @@ class SceneChecks:
             "pinned",
             "with scene.groups and scene.supports leaves the body free to move (a singular "
             f"stiffness): nothing stops it {' or '.join(motions)}; pin two points (scene.pinned) "
-            "or hold "
-            "a segment (scene.supports, or an actuated group)",
+            "or hold a segment (scene.supports, or an actuated group)",
         )

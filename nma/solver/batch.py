@@ -123,9 +123,9 @@ class HostBatches:
         spaces = {t: ws or self.backend.workspace() for t, ws in kept.items()}
 
         def one(i):
-            # nothing flows back (a failed sample a loss masks out): no adjoint to solve,
+            # nothing flows back (a failed sample a loss masks out): no adjoint to solve, nor a
+            # singular tangent's NaN
             if not np.any(bars[i]):
-                # nor a singular tangent's NaN
                 return tuple(np.zeros_like(a) for a in (Xs[i], ds[i], mats[i]))
             return jax.tree_util.tree_map(
                 np.asarray,

@@ -21,9 +21,9 @@ from .starts import continue_in_time, setup
 from .status import Status
 from .warm import Audit, Start, WarmStarts
 
-# contact blocks a solve's linearisations have room for at first (the near ones of the
+# contact blocks a solve's linearisations have room for at first (the near ones of the scenes'
+# largest actuations); more near: 4x as many (kernels compiled once per room)
 CONTACT_SLOTS = 512
-# scenes' largest actuations); more near: 4x as many (kernels compiled once per room)
 
 
 class AtRest:
@@ -133,7 +133,7 @@ class HostNewton:
                 audit = Audit(float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300)))
                 if audit.same:
                     return u, info, audit
-                energy = lambda v: float(self._energy(X, d, mat, v))  # noqa: E731
+                energy = lambda v: float(self._energy(X, d, mat, v))
                 return (
                     cold,
                     cold_info,

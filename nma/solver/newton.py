@@ -110,11 +110,11 @@ def _contact_normal(eqs: Equations, opts: NewtonOptions, s: State):
     semi-definite): in a load step's first corrector (the predictor has just pressed the walls
     together along a line that ignored how the barrier stiffens) and in every corrector whose last
     residual was above contact_exact_below times the force scale.  The exact Hessian's indefinite
-    part swings the walls in and out of the barrier there (shape matching's trained design at 14 x
-    5: 4 evaluation targets that took 200 iterations and more now take 98-119).  Near equilibrium
-    the exact one, so that Newton converges quadratically and a converged state's factor is of the
-    exact Hessian (its inertia, the adjoint).  False (a static branch) without contact or with
-    contact_exact_below = 0."""
+    part swings the walls in and out of the barrier there (shape matching's trained design at
+    14 x 5: 4 evaluation targets take 98-119 iterations with it, 200 and more without).  Near
+    equilibrium the exact one, so that Newton converges quadratically and a converged state's
+    factor is of the exact Hessian (its inertia, the adjoint).  False (a static branch) without
+    contact or with contact_exact_below = 0."""
     if not (eqs.solid.contact and opts.contact_exact_below > 0):
         return False
     return (
@@ -173,7 +173,6 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
 
     def correct(_):
         descent = finite & (slope < 0)
-        # noqa: E731
         energy = lambda u: eqs.potential(
             p.quad, u, p.boundary(s.lam), p.load(s.lam), p.mat, p.inertia
         )

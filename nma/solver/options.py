@@ -14,9 +14,8 @@ from ..registry import CORRECTORS
 from ..settings import bounded, option
 
 
-# how a corrector step at fixed load
+# how a corrector step at fixed load is globalised (nma.solver.correctors)
 CORRECTORS.declare("line_search", "nma.solver.correctors:LineSearch")
-# is globalised (nma.solver.correctors)
 CORRECTORS.declare("trust_region", "nma.solver.correctors:TrustRegion")
 WARM_START_NEEDS_HOST = (
     "needs a host linear solver (pardiso, superlu): solver.linear=dense solves a batch in "

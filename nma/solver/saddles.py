@@ -28,7 +28,6 @@ def leave(newton, p, lin, ws):
     it."""
     with newton.backend.clock.time("saddles"):
         kel = jax.device_get(lin.kel)
-        # noqa: E731
         unstable = lambda sigma: ws.factorise(kel, sigma) or newton.backend.inertia(ws)
         lo, hi = 0.0, 1e-9 * float(lin.state.k_ref)
         while unstable(hi):

@@ -37,7 +37,7 @@ def setup(
     quad = quadrature(eqs.solid, X, check_points=opts.element_bound)
     u_D = eqs.A @ d
     finite = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(mat))
-    scalar = lambda v: jnp.asarray(v, X.dtype)  # noqa: E731
+    scalar = lambda v: jnp.asarray(v, X.dtype)
     zero = jnp.zeros(eqs.boundary.n_dofs, X.dtype)
     size = jnp.max(jnp.ptp(X, axis=0))
     if start is None:
@@ -80,7 +80,7 @@ def setup(
 
 def _initial(opts: NewtonOptions, u0, status, tol, k_ref, f_ref) -> State:
     """A solve's first state: at u0, load factor 0, its first step a predictor."""
-    scalar = lambda v: jnp.asarray(v, u0.dtype)  # noqa: E731
+    scalar = lambda v: jnp.asarray(v, u0.dtype)
     return State(
         u=u0,
         lam=scalar(0.0),

@@ -185,12 +185,10 @@ def failure(info: NewtonInfo, context: str = "", nu: float | None = None) -> Sol
         msg += (
             f". material.nu = {nu:g} is nearly incompressible (bulk/shear modulus "
             f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.0f}): Newton needs several times the usual "
-            "iterations "
-            "there; the commands' auto settings model it locking-free "
+            "iterations there; the commands' auto settings model it locking-free "
             "(material.formulation=mixed, "
             f"solver.corrector=trust_region, solver.max_step_iters=300, solver.max_iters=1000, "
             "fidelity.inversion_barrier=0.5, contact on): leave those to auto, raise "
-            "solver.max_iters, "
-            f"or lower nu"
+            f"solver.max_iters, or lower nu"
         )
     return SolverError(msg, info)

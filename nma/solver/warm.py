@@ -9,9 +9,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-# an audited warm solve whose displacements differ from the cold one's by more
+# an audited warm solve whose displacements differ from the cold one's by more (max norm,
+# relative to the cold one's largest) reached another equilibrium
 SAME_EQUILIBRIUM = 1e-6
-# (max norm, relative to the cold one's largest) reached another equilibrium
 # warm starts stop once more than this fraction of audits differ
 MIN_AUDITS, MAX_OTHER_EQUILIBRIA = 8, 0.1
 # audits that found another equilibrium, recorded (difference, energies)

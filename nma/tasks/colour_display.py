@@ -139,7 +139,7 @@ class ColourDisplay:
 
         def backward(saved, bar):
             points, colour_nets, near = saved
-            pullback = lambda f: lambda: jax.vjp(f, points, colour_nets)[1](bar)  # noqa: E731
+            pullback = lambda f: lambda: jax.vjp(f, points, colour_nets)[1](bar)
             return jax.lax.cond(near, pullback(lambda *a: nearest(*a)[0]), pullback(every))
 
         scores.defvjp(forward, backward)

@@ -144,8 +144,7 @@ class DigitalMNISTTask(TaskConfig):
                 f"optim.lr must be in (0, {self.NETWORK_LR_MAX:g}] for task.phase={self.phase}, "
                 "which "
                 f"trains a network, got {optim.lr:g} (task=digital_mnist's rate is the lookup "
-                "table's); "
-                f"experiment=repro_mnist_{self.phase} sets the phase's own"
+                f"table's); experiment=repro_mnist_{self.phase} sets the phase's own"
             )
 
 
@@ -210,8 +209,7 @@ class FollowPathTask(TimedTaskConfig):
         if self.point not in scene.tracked:
             raise ConfigError(
                 f"task.point {self.point!r} is not tracked by scene {scene.name}; its tracked "
-                "points "
-                f"are {sorted(scene.tracked)}"
+                f"points are {sorted(scene.tracked)}"
             )
 
 
@@ -287,7 +285,6 @@ def task_schema(task: dict, defaults: list | None = None) -> type:
     if name not in TASK_SCHEMAS or name == "spec":
         raise ConfigError(
             f"task {name!r} is not one of {sorted(set(TASK_SCHEMAS) - {'spec'})}, and names no "
-            "goal "
-            "(a task posed in YAML: nma.tasks.spec)"
+            "goal (a task posed in YAML: nma.tasks.spec)"
         )
     return TASK_SCHEMAS[name]

@@ -62,8 +62,7 @@ def descriptors(cfg: SpecConfig) -> np.ndarray | None:
     if rows.shape[0] == 0 or rows.shape[1] != cfg.dim or not np.all(np.isfinite(rows)):
         raise ConfigError(
             f"task.dataset {path} must hold finite rows of {cfg.dim} value{'s' * (cfg.dim > 1)} "
-            "for "
-            f"goal {cfg.goal}, got an array of shape {rows.shape}"
+            f"for goal {cfg.goal}, got an array of shape {rows.shape}"
         )
     for k, row in enumerate(rows):
         cfg.check_values(f"dataset (row {k + 1} of {path})", list(row))
@@ -87,7 +86,7 @@ def wall_area(points: jnp.ndarray) -> jnp.ndarray:
     mid = points[..., PER_SPAN // 2 :: PER_SPAN, :]
     end = jnp.roll(start, -1, axis=-2)
     ctrl = 2.0 * mid - 0.5 * (start + end)
-    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
+    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
     return jnp.sum((cross(start, ctrl) + cross(ctrl, end)) / 3.0 + cross(start, end) / 6.0, axis=-1)
 
 

@@ -153,8 +153,7 @@ class SpecTask(TaskConfig):
         if missing:
             raise ConfigError(
                 f"task.points names {missing}, which scene {scene.name} does not track; its "
-                "tracked "
-                f"points are {sorted(scene.tracked)} (scene.tracked)"
+                f"tracked points are {sorted(scene.tracked)} (scene.tracked)"
             )
         if self.goal in ("distance", "rotate") and len(self.points) == 2:
             a, b = (scene.tracked[p] for p in self.points)
@@ -162,8 +161,7 @@ class SpecTask(TaskConfig):
             if [float(v) for v in a] == [float(v) for v in b]:
                 raise ConfigError(
                     f"task.points {self.points} are one place in scene {scene.name} ({list(a)}): "
-                    "goal "
-                    f"{self.goal} needs two points apart"
+                    f"goal {self.goal} needs two points apart"
                 )
             apart = math.dist([float(v) for v in a], [float(v) for v in b])
             asked = (
@@ -178,14 +176,12 @@ class SpecTask(TaskConfig):
                 raise ConfigError(
                     f"task.{'cases' if self.cases else 'low'} asks for a distance change of "
                     f"{min(asked):g}, but {', '.join(self.points)} are {apart:g} apart at rest: "
-                    "each "
-                    f"change must be above {-apart:g}"
+                    f"each change must be above {-apart:g}"
                 )
         if self.group is not None and self.group not in [g.name for g in scene.groups]:
             raise ConfigError(
                 f"task.group {self.group!r} is not an actuated group of scene {scene.name}; its "
-                "groups "
-                f"are {[g.name for g in scene.groups]} (scene.groups)"
+                f"groups are {[g.name for g in scene.groups]} (scene.groups)"
             )
         if self.pore is not None:
             rows = scene.rows()[::-1]  # bottom row first
@@ -194,6 +190,5 @@ class SpecTask(TaskConfig):
                 raise ConfigError(
                     f"task.pore {self.pore} is not a porous cell of scene {scene.name} (a grid of "
                     f"{len(rows[0])} columns and {len(rows)} rows, counted from 0 at the bottom "
-                    "left; "
-                    f"the porous cells are P in scene.cells), got {self.pore}"
+                    f"left; the porous cells are P in scene.cells), got {self.pore}"
                 )

@@ -198,8 +198,7 @@ def figure_deformed(path: Path, sim, task, evaluation: Evaluation, limit: int = 
         f"{evaluation.record[task.metric_name]:.3g} {task.metric_unit}"
         + (
             f"; {n_invalid} of {evaluation.record['checked_states']} states not physical (red: "
-            "material "
-            f"inverted or a wall through a wall)"
+            f"material inverted or a wall through a wall)"
             if n_invalid
             else ""
         ),
@@ -239,7 +238,7 @@ def figure_errors(path: Path, task, evaluation: Evaluation):
             edges = lambda v: np.concatenate(
                 [
                     [1.5 * v[0] - 0.5 * v[1]],
-                    0.5 * (v[1:] + v[:-1]),  # noqa: E731
+                    0.5 * (v[1:] + v[:-1]),
                     [1.5 * v[-1] - 0.5 * v[-2]],
                 ]
             )

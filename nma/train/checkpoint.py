@@ -97,7 +97,7 @@ def differences(old: dict, new: dict, absent: dict | None = None) -> tuple[set[s
     """The flat keys whose values differ between two flattened fingerprints, a key missing from one
     meaning `absent`'s value for it, and each difference as 'key: old -> new'."""
     absent = absent or {}
-    value = lambda d, k: d[k] if k in d else absent.get(k, ABSENT)  # noqa: E731
+    value = lambda d, k: d[k] if k in d else absent.get(k, ABSENT)
     changed = {k for k in old.keys() | new.keys() if value(old, k) != value(new, k)}
     return changed, [f"{k}: {value(old, k)!r} -> {value(new, k)!r}" for k in sorted(changed)]
 
@@ -128,7 +128,7 @@ def check_fingerprint(
     new = dict(flatten(json.loads(json.dumps(fingerprint))))
     changed, diff = differences(old, new, absent)
     if changed:
-        # noqa: E731  (what the checkpoint trained with)
+        # what the checkpoint trained with
         was = lambda k: old.get(k, (absent or {}).get(k))
         # defaults that changed since runs trained: contact=auto turned contact on for a scene whose
         # runs trained without it, fidelity=scene a discretisation for one whose runs trained at the

@@ -19,9 +19,9 @@ class Evaluation:
     states that the figures and the HDF5 fields draw."""
 
     # step, the task's metric (mean over every sample) and extra metrics, failed_solves,
-    record: dict
     # failed_samples (their per_sample values: Task.failed_score), over_converged (the mean
     # over the others, or None), validity summary, invalid_samples, per_sample, eval_actuations
+    record: dict
     X: Any  # (n_points, 2) reference control points
     d: Any  # (n, n_actuations) actuations
     u: Any  # (n, n_points, 2) displacements

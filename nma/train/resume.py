@@ -53,8 +53,7 @@ class TrainerCheckpoints:
         if (geom and len(missing) == len(geom)) or (exact and (missing or net_error)):
             what = [
                 f"geometry {k} (checkpoint {np.shape(saved[k]) if k in saved else 'none'}, this "
-                "run "
-                f"{tuple(geom[k].shape)})"
+                f"run {tuple(geom[k].shape)})"
                 for k in missing
             ] + ([f"the network ({net_error})"] if net_error else [])
             raise ConfigError(
@@ -78,8 +77,7 @@ class TrainerCheckpoints:
         step = self.state["step"]
         raise Stopped(
             f"stopped by {signal.Signals(signum).name} after step {step} of {self.cfg.steps}; "
-            "checkpoint "
-            f"{checkpoint.path_of(self.checkpoint_dir(), step)} saved: continue with "
+            f"checkpoint {checkpoint.path_of(self.checkpoint_dir(), step)} saved: continue with "
             "trainer.resume=true "
             f"in the same run directory",
             signum,

@@ -142,8 +142,7 @@ def check_run_dir(run_dir: Path, resume: str, what: str = "hydra.run.dir") -> No
     if saved.is_file() and "task" not in _top_keys(saved):
         raise ConfigError(
             f"{what}={run_dir} holds another command's output ({saved.relative_to(run_dir)} is "
-            "not a "
-            "training run's): a run there would replace its record; give this run another "
+            "not a training run's): a run there would replace its record; give this run another "
             "directory"
         )
     held = [

@@ -128,7 +128,7 @@ class Trainer(TrainerEvaluation, TrainerCheckpoints):
         # steer away from states that invert between Gauss points
         if self.cfg.inversion_penalty > 0:
             margin = self.cfg.inversion_margin
-            one = lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin)  # noqa: E731
+            one = lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin)
             # a trajectory's: summed over its states
             penalty = jax.vmap(
                 lambda ui: (
@@ -200,8 +200,7 @@ class Trainer(TrainerEvaluation, TrainerCheckpoints):
                 "step %d: %d training solves stopped where the material would invert between "
                 "Gauss points "
                 "(solver.element_bound); they give no gradient, so nothing steers the design away "
-                "from "
-                "them: trainer.inversion_penalty does (docs/explanation/physical-states.md)",
+                "from them: trainer.inversion_penalty does (docs/explanation/physical-states.md)",
                 step + 1,
                 n_inverts,
             )
@@ -261,8 +260,7 @@ class Trainer(TrainerEvaluation, TrainerCheckpoints):
             )
         log.warning(
             "step %d: no sample of the batch converged (the first: %s); step skipped (%d in a row "
-            "of "
-            "trainer.max_failed_steps %d)",
+            "of trainer.max_failed_steps %d)",
             step + 1,
             failure(first),
             self._failed_in_a_row,

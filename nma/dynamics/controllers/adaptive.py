@@ -46,6 +46,7 @@ class Adaptive(Controller):
         while True:
             rest = dt - s
             n = max(1, math.ceil(rest / proposal - 1e-9))  # steps left, each at most the proposal
+            n = min(n, max(1, math.floor(rest / shortest + 1e-9)))  # and none below the shortest
             h = rest / n if n > 1 else rest
             step, info, end1, z1 = stepper.step(z, t + s, h, k, len(done), end)
             iterations += int(info.iterations)

@@ -89,6 +89,12 @@ def law_names() -> tuple[str, ...]:
     return tuple(LAWS.names())
 
 
+def builtin(name: str) -> bool:
+    """Whether law `name` is one of this package's modules (an installed package's is not)."""
+    _discover()
+    return LAWS.get(name).__module__.startswith(f"{__name__}.")
+
+
 def law_of(name: str, parameters=()) -> Law:
     """The law `name` taking the parameters `parameters` names (Ogden's terms: as many as mu's;
     none: the law's defaults); ConfigError naming the laws there are for another name."""
