@@ -13,16 +13,9 @@ from nma.errors import ConfigError
 from nma.mechanics.energy import quadrature
 from nma.simulator import Simulator
 
-CELLS = 20  # a clamped strip of 20 solid cells of 5 x 5: L = 100, h = 5 (slenderness 20)
-L, H = 5.0 * CELLS, 5.0
-BEAM = {
-    "name": "beam",
-    "cell_size": 5.0,
-    "cells": "S" * CELLS,
-    "groups": [],
-    "supports": [{"segment": [[0, 0], [0, H]], "kind": "clamped"}],
-    "tracked": {"tip": [L, H / 2]},
-}
+# BEAM: a clamped strip of 20 solid cells of 5 x 5, L = 100, h = 5 (slenderness 20)
+from experiments.verify import BEAM, H, L
+
 # a small self-weight: the tip sags about 0.5% of the span, so the geometric nonlinearity, of
 # relative order (w / L)^2, is below 1e-4
 G = 6e-9

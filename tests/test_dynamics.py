@@ -20,16 +20,8 @@ from nma.mechanics.energy import Tangents, quadrature, strain_energy
 from nma.simulator import Simulator
 from nma.solver.status import Status, failure
 
-CELLS = 20  # a clamped strip of 20 solid cells of 5 x 5: L = 100, h = 5 (slenderness 20)
-L, H = 5.0 * CELLS, 5.0
-BEAM = {
-    "name": "beam",
-    "cell_size": 5.0,
-    "cells": "S" * CELLS,
-    "groups": [],
-    "supports": [{"segment": [[0, 0], [0, H]], "kind": "clamped"}],
-    "tracked": {"tip": [L, H / 2]},
-}
+# BEAM: a clamped strip of 20 solid cells of 5 x 5, L = 100, h = 5 (slenderness 20)
+from experiments.verify import BEAM, H, L
 
 
 def no_actuation(coeffs, t):
