@@ -18,7 +18,8 @@ fitted law must be stable (Drucker) over the data's stretches.  Each law gives i
 guess and bounds (Law.fit_start: Gent's Jm, say, is bounded where Gent is Neo-Hookean's) and what
 to note of the result (Law.fit_notes).
 
-The material file holds the parameters, nu, the unit, those stretches, the source, and the fit's
+The material file holds the parameters, nu (with the volume term `lame`: nu is the 3D Poisson's
+ratio, material.volumetric), the unit, those stretches, the source, and the fit's
 record (data file and its sha256, columns, points, range, errors); one JSON line with the same goes
 to stdout.
 """
@@ -310,6 +311,8 @@ def fit(cfg: FitConfig) -> dict:
         "law": cfg.law,
         "E": None,
         "nu": cfg.nu,
+        # nu the 3D Poisson's ratio of a shipped or fitted elastomer (material.volumetric)
+        "volumetric": "lame" if law.volume_term else "auto",
         "parameters": {n: float(v) for n, v in zip(law.names, p)},
         "unit": cfg.unit,
         "stretches": [round(stretch_range[0], 4), round(stretch_range[1], 4)],

@@ -13,7 +13,9 @@ What auto decides, and by what:
 - material.formulation=auto, solver.corrector=auto, solver.max_iters, solver.max_step_iters and
   fidelity.inversion_barrier left null: by the material's compressibility (material_model: its nu
   against NEARLY_INCOMPRESSIBLE);
-- contact=auto: on for a nearly incompressible material, else as the scene says (its `contact`).
+- contact=auto: on for a nearly incompressible material, else as the scene says (its `contact`);
+- material.volumetric=auto: the form the scene states (its `volumetric`: the shipped scenes state
+  the paper's, bulk), else lame; a law without a volume term keeps auto (it has no such term).
 
 Beside a trained run (nma.evaluate) what is left to auto is taken as the run solved, and
 contact=auto follows the scene.  solver.linear=auto is the backend registry's choice
@@ -27,8 +29,9 @@ import dataclasses
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
+from .errors import ConfigError
 from .mechanics.options import NEARLY_INCOMPRESSIBLE, ContactSettings
-from .schema.physics import COMPRESSIBLE, material_model
+from .schema.material_model import COMPRESSIBLE, material_model
 from .solver.options import NewtonOptions
 
 AUTO_SOLVER = tuple(COMPRESSIBLE.solver)  # the solver settings auto decides by the material
@@ -78,11 +81,29 @@ def resolve(
     decided = {"fidelity": fidelity, "contact": contact, "solver": solver}
     if model is not None:
         material = settings.material
+        whole = not material.law_model().volume_term
         if material.formulation == "auto":  # a law without a volume term: displacement
-            whole = not material.law_model().volume_term
             material = replace(material, formulation="displacement" if whole else model.formulation)
+        if material.volumetric == "auto" and not whole:
+            material = replace(material, volumetric=getattr(scene, "volumetric", None) or "lame")
+        if material.volumetric == "lame" and not whole:
+            _check_lame(material)
         decided["material"] = material
     return replace(settings, **decided)
+
+
+def _check_lame(material) -> None:
+    """Refuses a `lame` volume term whose coefficient is not positive: where psi alone stiffens
+    volume change more than nu asks (a Mooney-Rivlin's 4 C01 above 2 mu0 nu / (1 - 2 nu)), the
+    energy would fall without bound as J -> 0."""
+    k = float(material_of(material).volume_modulus(material_params(material)))
+    if not k > 0:
+        raise ConfigError(
+            f"material.volumetric=lame gives law {material.law} the volume coefficient {k:.4g} "
+            f"at material.nu={material.nu}: it must be positive (psi's own share of the Lame "
+            "constant exceeds 2 mu0 nu / (1 - 2 nu)); raise material.nu or set "
+            "material.volumetric=bulk"
+        )
 
 
 def _filled(solver, choices: dict):
@@ -121,8 +142,9 @@ def describe_model(settings) -> str:
 
 
 def material_of(material):
-    """The model's Material (nma.mechanics.material) of a resolved MaterialConfig: its law and its
-    formulation."""
+    """The model's Material (nma.mechanics.material) of a resolved MaterialConfig: its law, its
+    formulation and its volume term (volumetric=auto, of a material without a scene or of a law
+    without a volume term, which ignores it: lame, auto's choice where no scene states one)."""
     from .mechanics.material import Material
 
     if material.formulation == "auto":
@@ -130,7 +152,8 @@ def material_of(material):
             "material.formulation=auto is decided by the material: resolve it first "
             "(nma.resolve.resolve)"
         )
-    return Material(material.formulation, material.law_model())
+    volumetric = "lame" if material.volumetric == "auto" else material.volumetric
+    return Material(material.formulation, material.law_model(), volumetric)
 
 
 def material_params(material):

@@ -5,7 +5,9 @@
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
 converged, valid, validity, seconds, natural_frequencies: about the equilibrium, or with dynamics
-at rest, where the run starts; with dynamics, `dynamics`: nma.dynamics.report);
+at rest, where the run starts; with dynamics, `dynamics`: nma.dynamics.report; `plane_strain`: the
+material's volume term and the plane modulus and in-plane Poisson's ratio it gives at small strain,
+beside the 3D-consistent E / (1 - nu^2) and nu / (1 - nu): nma.mechanics.material);
 a value that is not finite is written as null, so the line is
 always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py:
 det F over the whole material, no boundary curve through itself or another); `validity` has the
@@ -56,6 +58,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .schema import scene_from_config
     from .geometry.validity import StateChecker
     from .io.fields import write_fields
+    from .mechanics.material import plane_strain_record
     from .simulator import Simulator
     from .units import Units
     from .viz.plot import save_reference_and_deformed
@@ -75,9 +78,21 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
         "contact": s.contact.enabled,
         "actuation": np.asarray(d).tolist(),
         "material": s.material.record(),
+        "plane_strain": plane_strain_record(sim.disc.material, mat),
         "model": model_record(s),
         "units": units.record(),
     }
+    plane = result["plane_strain"]
+    log.info(
+        "material.volumetric=%s: at small strain, under uniaxial plane-strain stress, the plane "
+        "modulus is %.4g (%.4f x E / (1 - nu^2)) and the in-plane Poisson's ratio %.4f "
+        "(nu / (1 - nu) = %.4f)",
+        plane["volumetric"] or "none (the law's energy is whole)",
+        plane["modulus"],
+        plane["modulus"] / plane["modulus_3d_consistent"],
+        plane["poisson"],
+        plane["poisson_3d_consistent"],
+    )
     params = sim.init_params()
     t0 = time.perf_counter()
     eq = sim.solve(params, d, mat, throw=False)

@@ -159,7 +159,9 @@ class Simulator:
                 material's nu.
             material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's
                 name, `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not
-                auto, replaces `formulation`.  `sim.material_params` is its parameter array.
+                auto, replaces `formulation`; its volume term (`volumetric`) left auto is the
+                scene's (the shipped scenes': the paper's, bulk), else lame.
+                `sim.material_params` is its parameter array.
 
         Returns:
             The simulator.

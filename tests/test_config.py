@@ -854,7 +854,7 @@ def test_checkpoints_of_the_default_formulation_keep_their_fingerprint():
         validate(compose_cfg("task=translation", "logger=none", "material.formulation=mixed"))
     )
     assert (
-        default["material"] == {"formulation": "displacement"}
+        default["material"] == {"formulation": "displacement", "volumetric": "bulk"}
         and mixed["material"]["formulation"] == "mixed"
     )
     # a record from before the setting existed

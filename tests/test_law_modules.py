@@ -288,4 +288,5 @@ def test_a_law_installed_from_outside_runs_by_its_name_alone(tmp_path):
         "C20": 0.001,
         "nu": 0.3,
         "formulation": "displacement",
+        "volumetric": "bulk",  # the translation scene's, the paper's form
     }

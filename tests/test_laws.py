@@ -39,6 +39,7 @@ AB_SERIES = [1 / 2, 1 / 20, 11 / 1050, 19 / 7000, 519 / 673750]
 
 def material(law, values, formulation="displacement"):
     cfg = MaterialConfig(law=law, E=None, parameters=values, nu=NU, formulation=formulation)
+    cfg = dataclasses.replace(cfg, volumetric="bulk")  # the paper's kappa (kappa_of), as below
     return material_of(cfg), material_params(cfg)
 
 

@@ -39,6 +39,13 @@ def test_simulate_writes_fields_figure_and_json(tmp_path):
     # d0 = 1 moves the left side by (-1, 0) and d1 = -0.5 the right by (+0.5, 0): the pointer goes
     # left
     assert result["tracked"]["pointer"][0] < 12.5
+    # the paper's scene solves with the paper's volume term and says what its nu gives in the plane:
+    # kappa / (kappa + 2 mu) = 0.52 and 1.064 E / (1 - nu^2) at nu = 0.3 (tests/test_volumetric.py)
+    plane = result["plane_strain"]
+    assert result["material"]["volumetric"] == plane["volumetric"] == "bulk"
+    assert plane["poisson"] == pytest.approx(0.52, rel=1e-12)
+    assert plane["modulus"] / plane["modulus_3d_consistent"] == pytest.approx(1.064, rel=1e-12)
+    assert "material.volumetric=bulk" in proc.stderr
     with h5py.File(tmp_path / "fields.h5") as f:
         u = f["control/displacement"][()]
         assert np.all(np.isfinite(u)) and np.abs(u).max() > 0.5

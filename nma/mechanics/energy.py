@@ -10,23 +10,25 @@ equilibria that are not physical objects.  The exact integral of W over the elem
 infinite there. With fidelity.inversion_barrier = J_hat > 0, det F is also evaluated at 4 x 4 check
 points of every element (corners included: where nma.geometry.validity samples it) and a barrier
     b(J) = -kappa (1 - J / J_hat)^2 log(J / J_hat)   for J < J_hat,   0 above
-(C2 at J_hat, infinite at J = 0: the barrier of incremental potential contact, Li et al. 2020, on J)
+(C2 at J_hat, infinite at J = 0: the barrier of incremental potential contact, Li et al. 2020, on J;
+kappa, the bulk modulus, is only its scale, whatever material.volumetric)
 weighted by a 16th of the element's area joins the energy, and Newton's step bound keeps det F > 0
 at the check points too (as it does without the barrier with solver.element_bound, the default).
 Where det F >= J_hat at every check point, nothing changes.
 
 Formulations (`material.formulation`, Material.formulation):
 - `displacement`: W(F) at every Gauss point.
-- `mixed`: the volumetric term kappa/2 (log J)^2 is evaluated at the element's mean dilatation
+- `mixed`: the volumetric term k/2 (log J)^2 is evaluated at the element's mean dilatation
       theta_e = (1 / A_e) integral_e J dA   (A_e the element's reference area),
-  so the energy is  sum_q w mu/2 (I1 - 2 - 2 log J) + sum_e A_e kappa/2 (log theta_e)^2.  This is
-  the three-field Hu-Washizu functional with pressure and dilatation constant on each Bezier
-  element, both condensed element by element (the mean-dilatation method, Nagtegaal, Parks & Rice
-  1974; Simo, Taylor & Pister 1985): one volume constraint per element instead of one per Gauss
-  point, so a nearly incompressible material (nu -> 0.5) does not lock.  theta_e involves only the
-  element's 9 points, so the tangent keeps the element blocks and the sparse pattern of
-  `displacement`; the shear term keeps its -mu log J (a compressible Neo-Hookean of bulk modulus
-  ~mu, which cannot lock).
+  so the energy is  sum_q w mu/2 (I1 - 2 - 2 log J) + sum_e A_e k/2 (log theta_e)^2, k the
+  material's volume coefficient (Material.volume_modulus: kappa or lambda, by
+  material.volumetric).  This is the three-field Hu-Washizu functional with pressure and
+  dilatation constant on each Bezier element, both condensed element by element (the
+  mean-dilatation method, Nagtegaal, Parks & Rice 1974; Simo, Taylor & Pister 1985): one volume
+  constraint per element instead of one per Gauss point, so a nearly incompressible material
+  (nu -> 0.5) does not lock.  theta_e involves only the element's 9 points, so the tangent keeps
+  the element blocks and the sparse pattern of `displacement`; the shear term keeps its
+  -mu log J (a compressible Neo-Hookean of bulk modulus ~mu, which cannot lock).
 """
 
 from __future__ import annotations
@@ -176,7 +178,8 @@ def strain_energy(solid: Solid, quad: Quadrature, u: jnp.ndarray, mat: jnp.ndarr
     if mixed:
         # J of `safe`, without recomputing it
         area, theta = _mean_dilatation(quad, jnp.where(J > 0, J, 1.0))
-        energy = energy + jnp.sum(area * 0.5 * kappa * jnp.log(theta) ** 2)
+        k = solid.material.volume_modulus(mat, (mu, kappa))
+        energy = energy + jnp.sum(area * 0.5 * k * jnp.log(theta) ** 2)
     j_hat = solid.mesh.fidelity.inversion_barrier
     if j_hat > 0:
         Jc = det2(deformation_gradient(solid.mesh, quad, u, at_checks=True))
@@ -208,8 +211,8 @@ def _barrier_terms(mesh: Mesh, quad: Quadrature, u: jnp.ndarray, kappa):
     return jnp.sum(w * b), fe, Ke
 
 
-def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
-    """Energy, element forces and element tangents of sum_e A_e U(theta_e), U = kappa/2 (log
+def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, k):
+    """Energy, element forces and element tangents of sum_e A_e U(theta_e), U = k/2 (log
     theta)^2 (the `mixed` formulation): f = A U' dtheta, K = A U'' dtheta dtheta + A U' d2theta,
     where dtheta = integral dJ / A and d2theta = integral d2J / A over the element."""
     w = quad.weights
@@ -217,12 +220,12 @@ def _volumetric_terms(quad: Quadrature, F: jnp.ndarray, kappa):
     dJ, cross = _det_derivatives(F, quad.grads)
     dtheta = jnp.einsum("psq,psqai->psai", w, dJ) / area[..., None, None]
     log = jnp.log(theta)
-    dU, ddU = kappa * log / theta, kappa * (1.0 - log) / theta**2
+    dU, ddU = k * log / theta, k * (1.0 - log) / theta**2
     fe = (area * dU)[..., None, None] * dtheta
     Ke = jnp.einsum("ps,psai,psbk->psaibk", area * ddU, dtheta, dtheta) + jnp.einsum(
         "ps,psqab,ik->psaibk", dU, w[..., None, None] * cross, EPS
     )
-    return jnp.sum(area * 0.5 * kappa * log**2), fe, Ke
+    return jnp.sum(area * 0.5 * k * log**2), fe, Ke
 
 
 # Each element's terms pass through per-Gauss-point intermediates (w G^T C alone is 14 KB per
@@ -309,7 +312,8 @@ def energy_force_tangents(
         quad, u[solid.mesh.elem_points], solid.material.point_terms(mat, not mixed)
     )
     if mixed:
-        ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(solid.mesh, quad, u), kappa)
+        k = solid.material.volume_modulus(mat, (mu, kappa))
+        ev, fv, Kv = _volumetric_terms(quad, deformation_gradient(solid.mesh, quad, u), k)
         energy, fe, Ke = energy + ev, fe + fv, Ke + Kv
     if solid.mesh.fidelity.inversion_barrier > 0:
         eb, fb, Kb = _barrier_terms(solid.mesh, quad, u, kappa)

@@ -1,12 +1,18 @@
 """The model's material: a hyperelastic law (nma.mechanics.laws) with its treatment of volume
 change.
 
-The material's strain energy is the law's compressible form W = psi - c0 log J + kappa/2 (log J)^2
+The material's strain energy is the law's compressible form W = psi - c0 log J + k/2 (log J)^2
 in plane strain; its stress and tangent are W's derivatives by automatic differentiation, or, for a
 law whose psi is Neo-Hookean's (`Law.closed_form`), the closed forms here:
 
-    W(F) = mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2,
-    mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
+    W(F) = mu/2 (I1 - 2 - 2 log J) + k/2 (log J)^2,  mu = E / (2 (1 + nu)),
+    k = kappa = E / (3 (1 - 2 nu))             (volumetric `bulk`, the paper's), or
+    k = lambda = E nu / ((1 + nu) (1 - 2 nu))  (volumetric `lame`: nu is the 3D Poisson's ratio).
+
+With `lame` a small strain in the plane has the plane-strain moduli of a 3D solid, E / (1 - nu^2)
+under uniaxial stress with the in-plane Poisson's ratio nu / (1 - nu); with `bulk` they are those
+of Lame constants (kappa, mu), 4 mu (kappa + mu) / (kappa + 2 mu) and kappa / (kappa + 2 mu)
+(plane_moduli).  kappa stays the inversion barrier's scale in both.
 
 The material's parameters are an array (the law's, then nu; Neo-Hookean's [E, nu]) so that they
 are a differentiable input like any other; the law reads them by name.
@@ -24,7 +30,7 @@ from ..errors import ConfigError
 from ..settings import check_range
 from .laws import POISSON, Law, law_of
 from .laws.base import Named
-from .options import FORMULATIONS
+from .options import FORMULATIONS, VOLUMETRIC
 
 
 @dataclass(frozen=True)
@@ -32,17 +38,25 @@ class Material:
     """The model's material: a law (nma.mechanics.laws; the paper's Neo-Hookean by default) with
     its treatment of volume change, `formulation` (one of FORMULATIONS: the volume term at every
     Gauss point, or at each element's mean dilatation, which does not lock as nu -> 0.5:
-    nma.mechanics.energy).  Its parameters (`names`: the law's, then nu; Neo-Hookean's [E, nu])
-    are an array given to every solve, so that they are differentiable like the geometry."""
+    nma.mechanics.energy) and the coefficient of its volume term, `volumetric` (one of
+    VOLUMETRIC: the Lame constant of the 3D law, or the bulk modulus, the paper's and the default
+    here; a law without a volume term ignores it).  Its parameters (`names`: the law's, then nu;
+    Neo-Hookean's [E, nu]) are an array given to every solve, so that they are differentiable like
+    the geometry."""
 
     formulation: str = "displacement"
     law: Law = field(default_factory=lambda: law_of("neo_hookean"))
+    volumetric: str = "bulk"
 
     def __post_init__(self):
         if self.formulation not in FORMULATIONS:
             raise ConfigError(
                 f"material.formulation must be one of {list(FORMULATIONS)}, "
                 f"got {self.formulation!r}"
+            )
+        if self.volumetric not in VOLUMETRIC:
+            raise ConfigError(
+                f"material.volumetric must be one of {list(VOLUMETRIC)}, got {self.volumetric!r}"
             )
         if self.mixed and not self.law.volume_term:
             raise ConfigError(
@@ -91,17 +105,28 @@ class Material:
                 )
 
     def moduli(self, params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """The initial shear and the bulk modulus (mu, kappa) of the parameters."""
+        """The initial shear and the bulk modulus (mu, kappa) of the parameters: kappa is the
+        volume term's coefficient with volumetric `bulk` only (volume_modulus), and the scale of
+        the inversion barrier with either."""
         q = self.named(params)
         mu = self.law.shear_modulus(q)
         return mu, self.law.bulk_modulus(q, mu)
 
+    def volume_modulus(self, params: jnp.ndarray, moduli=None):
+        """k, the coefficient of the volume term k/2 (log J)^2: the bulk modulus kappa (`bulk`),
+        or the law's Lame constant (`lame`: Law.lame_modulus).  `moduli`: (mu, kappa) of the
+        parameters where the caller has them (one path for their derivatives, as the paper's)."""
+        mu, kappa = self.moduli(params) if moduli is None else moduli
+        if self.volumetric == "bulk":
+            return kappa
+        return self.law.lame_modulus(self.named(params), mu)
+
     def point_terms(self, params: jnp.ndarray, volumetric: bool = True):
         """W(F), P(F) = dW/dF and dP/dF as functions of deformation gradients (..., 2, 2): with or
-        without the volumetric term kappa/2 (log J)^2 (the `mixed` formulation adds it per
+        without the volumetric term k/2 (log J)^2 (the `mixed` formulation adds it per
         element)."""
         mu, kappa = self.moduli(params)
-        k = kappa if volumetric and self.law.volume_term else 0.0
+        k = self.volume_modulus(params, (mu, kappa)) if volumetric and self.law.volume_term else 0.0
         if self.law.closed_form:
             return (
                 jnp.vectorize(lambda f: neo_hookean(f, mu, k), signature="(2,2)->()"),
@@ -109,6 +134,27 @@ class Material:
                 lambda F: tangent(F, mu, k),
             )
         return self.derived_terms(params, k)
+
+    def plane_moduli(self, params: jnp.ndarray):
+        """(E', nu', G): the plane modulus C_1111 - C_1122^2 / C_2222 and the in-plane Poisson's
+        ratio C_1122 / C_2222 under uniaxial plane-strain stress at small strain, and the shear
+        modulus C_1212, of the tangent C at rest.  C_1111 and C_1122 are W's second derivatives in
+        the principal stretches (a, b, 1) at rest, taken of psi_principal (the 2 x 2 reduction's
+        branch at equal stretches stays out of it) and C_1212 = (C_1111 - C_1122) / 2 (isotropy)."""
+        q = self.named(params)
+        c0, k = self.law.stress_free(q), self.volume_modulus(params)
+
+        def W(a, b):
+            psi = self.law.psi_principal(q, a, b, 1.0)
+            if not self.law.volume_term:
+                return psi
+            logJ = jnp.log(a * b)
+            return psi - c0 * logJ + 0.5 * k * logJ**2
+
+        one = jnp.asarray(1.0)
+        c11 = jax.grad(jax.grad(W, 0), 0)(one, one)
+        c12 = jax.grad(jax.grad(W, 0), 1)(one, one)
+        return c11 - c12**2 / c11, c12 / c11, 0.5 * (c11 - c12)
 
     def derived_terms(self, params: jnp.ndarray, k):
         """W(F) = psi - c0 log J + k/2 (log J)^2 of the law, and its first and second derivatives by
@@ -127,6 +173,23 @@ class Material:
             jnp.vectorize(jax.grad(W), signature="(2,2)->(2,2)"),
             jnp.vectorize(jax.hessian(W), signature="(2,2)->(2,2,2,2)"),
         )
+
+
+def plane_strain_record(model: Material, params) -> dict:
+    """What a run's material gives in the plane at small strain (nma.simulate's `plane_strain`):
+    its volume term's form (None: a law without one), the plane modulus and in-plane Poisson's
+    ratio under uniaxial plane-strain stress (Material.plane_moduli), and the 3D-consistent values
+    E / (1 - nu^2), nu / (1 - nu) of E = 2 mu0 (1 + nu), which `lame` has."""
+    plane, poisson, _ = (float(x) for x in model.plane_moduli(params))
+    nu = float(model.nu(params))
+    E = 2.0 * float(model.moduli(params)[0]) * (1.0 + nu)
+    return {
+        "volumetric": model.volumetric if model.law.volume_term else None,
+        "modulus": plane,
+        "poisson": poisson,
+        "modulus_3d_consistent": E / (1.0 - nu**2),
+        "poisson_3d_consistent": nu / (1.0 - nu),
+    }
 
 
 def material(E: float, nu: float) -> jnp.ndarray:

@@ -11,6 +11,12 @@ from .laws import POISSON, law_names
 # how the strain energy treats volume change (nma.mechanics.energy): at every Gauss point, or
 # through each element's mean dilatation (locking-free as nu -> 0.5)
 FORMULATIONS = ("displacement", "mixed")
+# the coefficient of the volumetric term 1/2 (log J)^2 of a law that has one
+# (Material.volume_modulus): `lame`, the Lame constant lambda that makes nu the Poisson's ratio of
+# the law's 3D compressible form, whose plane strain then has the plane modulus E / (1 - nu^2) and
+# the in-plane Poisson's ratio nu / (1 - nu) at small strain; `bulk`, the 3D bulk modulus
+# kappa = E / (3 (1 - 2 nu)) (the paper's form: 1.064 E / (1 - nu^2) and 0.52 at nu = 0.3)
+VOLUMETRIC = ("lame", "bulk")
 # mass per unit area: absolute, and against the material's initial shear modulus mu0 (mu0 / density,
 # a squared wave speed, sets the natural frequencies and the time step); outside these the mass
 # matrix and the modal solve (ARPACK, shift-invert) leave float64's range

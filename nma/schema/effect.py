@@ -43,7 +43,7 @@ def _unused(schema, prefix: str, names, why: str) -> Unused:
 def _contact_off(s) -> str | None:
     """Why contact is off for these settings (contact=auto decided as nma.resolve decides it, by
     the material's model), or None where it is on."""
-    from .physics import material_model
+    from .material_model import material_model
 
     if s.contact.enabled is None:
         if not material_model(s.material.nu).contact_on(s.scene):

@@ -13,6 +13,7 @@ from ..mechanics.options import (
     LAW_NAMES,
     NEARLY_INCOMPRESSIBLE,
     STRESS_UNITS,
+    VOLUMETRIC,
     WAVE_SPEED_SQUARED_RANGE,
     ContactSettings,
 )
@@ -90,6 +91,16 @@ class MaterialConfig(Schema):
         f"{NEARLY_INCOMPRESSIBLE:g} on, else displacement (material_model); a law without "
         "a volume term (st_venant_kirchhoff): displacement",
     )
+    volumetric: str = choice(
+        "auto",
+        ("auto", *VOLUMETRIC),
+        doc="the coefficient of the volume term k/2 (log J)^2: lame, the Lame constant that "
+        "makes nu the 3D Poisson's ratio (plane strain then has E / (1 - nu^2) and nu / (1 - nu) "
+        "under uniaxial stress); bulk, the bulk modulus E / (3 (1 - 2 nu)), the paper's form "
+        "(1.064 E / (1 - nu^2) and 0.52 at nu = 0.3); auto: the scene's (scene.volumetric; the "
+        "shipped scenes state bulk), else lame; a law without a volume term "
+        "(st_venant_kirchhoff): auto only",
+    )
 
     def check(self):
         if len(self.stretches) != 2 or not self.stretches[0] < 1.0 < self.stretches[1]:
@@ -106,6 +117,13 @@ class MaterialConfig(Schema):
                 f"{list(law.names)}: choose material={self.law} (its file sets them), or set "
                 "material.E=null and the parameters (none: the law's defaults)",
                 self.E,
+            )
+        if self.volumetric != "auto" and not law.volume_term:
+            self.fail(
+                "volumetric",
+                f"has no effect: law {self.law} has no volume term (its energy is whole); "
+                "leave material.volumetric=auto",
+                self.volumetric,
             )
         law.check(self.values, self.nu)
         if not law.stable:
@@ -157,8 +175,8 @@ class MaterialConfig(Schema):
         return law_of(self.law, self.values)
 
     def record(self) -> dict:
-        """The law, its parameters, nu, the formulation and the unit: what a result says it was
-        solved with."""
+        """The law, its parameters, nu, the formulation, the volume term and the unit: what a result
+        says it was solved with."""
         unit = {"unit": self.unit} if self.unit else {}
         return {
             **({"name": self.name} if self.name else {}),
@@ -166,6 +184,7 @@ class MaterialConfig(Schema):
             **self.values,
             "nu": self.nu,
             "formulation": self.formulation,
+            "volumetric": self.volumetric,
             **unit,
         }
 
@@ -352,46 +371,3 @@ class SolverConfig(Schema):
         # the one traceable backend (nma.solver.linear)
         if self.warm_start and self.linear == "dense":
             self.fail("warm_start", WARM_START_NEEDS_HOST)
-
-
-@dataclass(frozen=True)
-class MaterialModel:
-    """What the auto settings choose for a material: its formulation, Newton's corrector and
-    iteration limits, the inversion barrier and whether the pores' walls touch (None: as the scene
-    says)."""
-
-    formulation: str
-    solver: dict
-    inversion_barrier: float
-    contact: Optional[bool]
-
-    def contact_on(self, scene) -> bool:
-        """contact=auto decided: by the material where it decides, else as the scene says."""
-        return bool(scene.contact) if self.contact is None else self.contact
-
-
-# A compressible material: the displacement model and Newton's defaults.  A nearly incompressible
-# one (nu >= NEARLY_INCOMPRESSIBLE): the locking-free model with the settings under which every cell
-# of the stability map at nu 0.499 converges (make study-incompressible;
-# docs/how-to/nearly-incompressible.md).
-_NEWTON = NewtonOptions()  # Newton's defaults: what auto chooses for a compressible material
-COMPRESSIBLE = MaterialModel(
-    "displacement",
-    {
-        "corrector": _NEWTON.corrector,
-        "max_iters": _NEWTON.max_iters,
-        "max_step_iters": _NEWTON.max_step_iters,
-    },
-    0.0,
-    None,
-)
-NEARLY_INCOMPRESSIBLE_MODEL = MaterialModel(
-    "mixed", {"corrector": "trust_region", "max_iters": 1000, "max_step_iters": 300}, 0.5, True
-)
-
-
-def material_model(nu: float) -> MaterialModel:
-    """The model a material of Poisson's ratio nu needs: what material.formulation=auto,
-    solver.corrector=auto, solver.max_iters, solver.max_step_iters and fidelity.inversion_barrier
-    left unset, and contact=auto, take."""
-    return NEARLY_INCOMPRESSIBLE_MODEL if nu >= NEARLY_INCOMPRESSIBLE else COMPRESSIBLE

@@ -11,6 +11,7 @@ from omegaconf import MISSING
 
 from ..errors import ConfigError
 from ..geometry.scene import Group, SceneSpec, Support
+from ..mechanics.options import VOLUMETRIC
 from ..settings import Schema, _points, bounded, choice
 from .scene_checks import SceneChecks
 
@@ -84,9 +85,10 @@ class SceneConfig(Schema, SceneChecks):
     (`SupportConfig`) and `pinned` points that hold the body, the `tracked` material points a task
     reads, the `gravity` whose dead load the body carries, the design's box (`radii_init`,
     `radii_bounds`, `corner_box`, `locked_nodes`), shape matching's `central_pore`, digital
-    MNIST's `colours`, and `round_pore_corners`, `contact` and `fidelity`.  Every field is checked
-    on construction, and `spec()` refuses a well-formed scene that cannot be a physical set-up (a
-    body nothing holds, a group off the outer boundary, cells in pieces), naming the field.
+    MNIST's `colours`, and `round_pore_corners`, `contact`, `fidelity` and `volumetric`.  Every
+    field is checked on construction, and `spec()` refuses a well-formed scene that cannot be a
+    physical set-up (a body nothing holds, a group off the outer boundary, cells in pieces), naming
+    the field.
 
     Examples:
         >>> strip = SceneConfig(name="strip", cells="PP\\nPP", tracked={"tip": [10, 5]},
@@ -146,6 +148,12 @@ class SceneConfig(Schema, SceneChecks):
     # the discretisation its runs use where the command names none (fidelity=scene, the default): a
     # mapping of fidelity.ctrl_per_patch and/or fidelity.quad_points; empty: the paper's 5 x 5
     fidelity: Dict[str, int] = field(default_factory=dict)
+    volumetric: Optional[str] = choice(
+        None,
+        (None, *VOLUMETRIC),
+        doc="the material's volume term where material.volumetric is auto: the form the scene's "
+        "results are stated in (the shipped scenes state bulk, the paper's); null: lame",
+    )
 
     def body_force(self, density: float):
         """The dead load per unit reference area, density x gravity (2,), or None without

@@ -53,6 +53,7 @@ def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, 
             f"run={run} is not a training run directory (it has no .hydra/config.yaml)"
         )
     from ..cli import holder_of
+    from ..mechanics.laws import law_of
 
     holder = holder_of(run)
     if holder:  # its newest checkpoint would change while it is read, and again after
@@ -79,6 +80,10 @@ def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, 
     # found them
     if "element_bound" not in cfg.get("solver", {}):
         cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}
+    # a run trained before material.volumetric existed solved with the paper's volume term
+    m = cfg.get("material") or {}
+    if "volumetric" not in m and law_of(m.get("law", "neo_hookean")).volume_term:
+        cfg.material = {**m, "volumetric": "bulk"}
     try:
         schema = task_schema(OmegaConf.to_container(cfg.get("task") or {}))
     except ConfigError as exc:
@@ -211,6 +216,7 @@ def check_init_from(path: Path, s: TrainConfig) -> None:
 ABSENT_MEANS = {
     "solver.element_bound": False,
     "material.formulation": "displacement",
+    "material.volumetric": "bulk",
     "trainer.inversion_penalty": 0.0,
     "contact.enabled": False,
 }
@@ -239,19 +245,20 @@ def _shaping(s: TrainConfig) -> dict:
     task = asdict(s.task)
     if getattr(s.task, "dataset", None):  # the descriptors themselves, not only the file's name
         task["dataset_sha256"] = _sha256(Path(s.task.dataset))
-    # resolved below
-    scene = {k: v for k, v in asdict(s.scene).items() if k not in ("contact", "fidelity")}
+    # resolved below (the scene's volumetric: as the material's)
+    scene = asdict(s.scene)
+    scene = {k: v for k, v in scene.items() if k not in ("contact", "fidelity", "volumetric")}
     return {
         "task": task,
         "scene": scene,
         "model": asdict(s.model),
         "fidelity": asdict(s.fidelity),
         # what describes the material (name, source, fit, unit) or checks it (stretches) changes no
-        # solve
+        # solve; volumetric=auto: a law without a volume term, which has none to record
         "material": {
             k: v
             for k, v in asdict(s.material).items()
-            if k not in ("name", "source", "fit", "unit", "stretches")
+            if k not in ("name", "source", "fit", "unit", "stretches") and v != "auto"
         },
         "optim": asdict(s.optim),
         "trainer": trainer,

@@ -3,13 +3,15 @@ Arruda-Boyce and St Venant-Kirchhoff.
 
 Every law has the same compressible form, the paper's Neo-Hookean generalised:
 
-    W(F) = psi(F) - c0 log J + kappa/2 (log J)^2
+    W(F) = psi(F) - c0 log J + k/2 (log J)^2
 
 psi is the law's strain energy of the 3D deformation, of the invariants I1, I2 of C = F^T F or of
 the principal stretches, taken in plane strain (F_33 = 1: nma.mechanics.laws.base); c0 =
-dpsi/dlambda at rest makes the reference stress-free, and kappa is the bulk modulus of the
-material's Poisson's ratio nu at its initial shear modulus mu0: kappa = 2 mu0 (1 + nu) /
-(3 (1 - 2 nu)), as Neo-Hookean's E / (3 (1 - 2 nu)).  With c0 = mu0 = mu and psi = mu/2 (I1 - 3)
+dpsi/dlambda at rest makes the reference stress-free, and k is, by material.volumetric, the bulk
+modulus of the material's Poisson's ratio nu at its initial shear modulus mu0, kappa = 2 mu0 (1 +
+nu) / (3 (1 - 2 nu)) as Neo-Hookean's E / (3 (1 - 2 nu)) (`bulk`, the paper's form), or the Lame
+constant that makes nu the 3D Poisson's ratio of the law's compressible form (`lame`:
+Law.lame_modulus).  With c0 = mu0 = mu and psi = mu/2 (I1 - 3)
 the form is Neo-Hookean's, so a Mooney-Rivlin with C01 = 0, a Yeoh with C20 = C30 = 0 and a
 one-term Ogden with alpha = 2 are it.  St Venant-Kirchhoff's psi is its whole energy
 (`Law.volume_term` False: no log J terms).  The volumetric term is the part the `mixed` formulation

@@ -102,7 +102,8 @@ def register(cls):
 class Law:
     """A hyperelastic law with the parameters `names` (all it declares but for a law of a variable
     number of terms).  The material's strain energy is the compressible form
-    W = psi - c0 log J + kappa/2 (log J)^2 (nma.mechanics.material)."""
+    W = psi - c0 log J + k/2 (log J)^2, k the bulk modulus kappa or the Lame constant lambda
+    (material.volumetric: nma.mechanics.material)."""
 
     names: tuple[str, ...]  # the parameters taken, in the material array's order (nu follows)
 
@@ -151,9 +152,27 @@ class Law:
         raise NotImplementedError
 
     def bulk_modulus(self, q, mu0):
-        """kappa: Neo-Hookean's bulk modulus at the initial shear modulus mu0 and q's nu, so that nu
-        means the same for every law."""
+        """kappa: Neo-Hookean's bulk modulus at the initial shear modulus mu0 and q's nu, the
+        paper's coefficient of (log J)^2 / 2 (material.volumetric=bulk) and the scale of the
+        inversion barrier."""
         return 2.0 * mu0 * (1.0 + q["nu"]) / (3.0 * (1.0 - 2.0 * q["nu"]))
+
+    def lame_modulus(self, q, mu0):
+        """lambda: the coefficient of (log J)^2 / 2 that gives the law's 3D compressible form the
+        Poisson's ratio q["nu"] at small strain, the Lame constant 2 mu0 nu / (1 - 2 nu) less psi's
+        own share of it (psi_lambda); Neo-Hookean's is kappa - 2 mu0 / 3."""
+        nu = q["nu"]
+        return 2.0 * mu0 * nu / (1.0 - 2.0 * nu) - self.psi_lambda(q)
+
+    def psi_lambda(self, q):
+        """psi's own share of the Lame constant at rest, d2 psi(a, b, 1) / da db at a = b = 1 (the
+        terms -c0 log J have none): Mooney-Rivlin's 4 C01, a Yeoh's 8 C20.  By automatic
+        differentiation of psi_principal, unless a law gives it in closed form."""
+        import jax
+
+        f = lambda a, b: self.psi_principal(q, a, b, 1.0)
+        one = jnp.asarray(1.0)
+        return jax.grad(jax.grad(f, 0), 1)(one, one)
 
     def psi_principal(self, q, l1, l2, l3):
         """psi of the three principal stretches."""
@@ -231,9 +250,10 @@ def principal_power_sum(C, beta):
     """c_1^beta + c_2^beta over the eigenvalues of a symmetric positive definite 2 x 2 C, twice
     differentiable everywhere (equal eigenvalues included)."""
     m = 0.5 * (C[..., 0, 0] + C[..., 1, 1])
-    x2 = jnp.clip(
-        1.0 - (C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] * C[..., 1, 0]) / m**2, 0.0, 1.0
-    )
+    # x^2 = ((c_11 - c_22)^2 / 4 + c_12 c_21) / m^2: no difference of near-equal terms, and no clip
+    # at 0, whose derivative (1/2 there) would halve the tangent at equal stretches
+    half_gap = 0.5 * (C[..., 0, 0] - C[..., 1, 1])
+    x2 = jnp.minimum((half_gap**2 + C[..., 0, 1] * C[..., 1, 0]) / m**2, 1.0)
     near = x2 < SERIES_BELOW
     xs = jnp.where(near, x2, 0.0)
     series, coef = 0.0, 1.0

@@ -21,6 +21,9 @@ class MooneyRivlin(InvariantLaw):
     def stress_free(self, q):
         return 2.0 * q["C10"] + 4.0 * q["C01"]
 
+    def psi_lambda(self, q):
+        return 4.0 * q["C01"]  # I2 = a^2 b^2 + b^2 + a^2 at c = 1: d2/da db (a^2 b^2) = 4
+
     def psi(self, q, I1, I2):
         return q["C10"] * (I1 - 3.0) + q["C01"] * (I2 - 3.0)
 

@@ -30,6 +30,9 @@ class NeoHookean(InvariantLaw):
     def bulk_modulus(self, q, mu0):
         return q["E"] / (3.0 * (1.0 - 2.0 * q["nu"]))
 
+    def psi_lambda(self, q):
+        return 0.0 * q["E"]  # psi = mu/2 (a^2 + b^2 + c^2 - 3) has no cross term
+
     def stress_free(self, q):
         return self.shear_modulus(q)
 
