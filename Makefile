@@ -115,7 +115,7 @@ repro-all:          ## every reproduction above, in two lanes side by side (one 
 repro-check:        ## results/ against its record (results/record.json): exit 1 where a result got worse than its noise band
 	$(PYTHON) experiments/guard.py
 
-verify:             ## verification benchmarks (cantilever frequencies, Cook's membrane, St Venant-Kirchhoff) against their references; exit 1 where one leaves its tolerance -> results/verification/
+verify:             ## verification benchmarks (cantilever frequencies, Cook's membrane, St Venant-Kirchhoff, Turek-Hron CSM1/2, Mooney-Rivlin block, Treloar fits) against their references; exit 1 where one leaves its tolerance -> results/verification/
 	$(PYTHON) experiments/verify.py
 
 settings-reference:  ## docs/reference/settings.md from the config schema (a test fails where it is stale)

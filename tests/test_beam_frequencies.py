@@ -3,7 +3,8 @@
 nma.dynamics.modes against Euler-Bernoulli's (beta_n L from cos(x) cosh(x) = -1) and
 Timoshenko's (shear coefficient 5/6, rotary inertia; its clamped-free frequency equation solved as
 the determinant of the exact transfer matrix of its equations of motion), both solved in
-experiments/verify.py, whose report (make verify) shows the same comparison under refinement.
+experiments/verification/cantilever.py, whose report (make verify) shows the same comparison under
+refinement.
 
 The modulus the beam theories take is the one nma's plane model has.  Its Neo-Hookean energy
 mu/2 (I1 - 2 - 2 log J) + kappa/2 (log J)^2, kappa = E / (3 (1 - 2 nu)), linearises to
@@ -17,7 +18,7 @@ states E' against E / (1 - nu^2), so that a reader comparing with a textbook is 
 import numpy as np
 import pytest
 
-from experiments.verify import (
+from experiments.verification.cantilever import (
     BEAM,
     MODES,
     bending_frequencies,

@@ -14,7 +14,7 @@ from nma.mechanics.energy import quadrature
 from nma.simulator import Simulator
 
 # BEAM: a clamped strip of 20 solid cells of 5 x 5, L = 100, h = 5 (slenderness 20)
-from experiments.verify import BEAM, H, L
+from experiments.verification.cantilever import BEAM, H, L
 
 # a small self-weight: the tip sags about 0.5% of the span, so the geometric nonlinearity, of
 # relative order (w / L)^2, is below 1e-4

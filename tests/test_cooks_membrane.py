@@ -9,7 +9,8 @@ nma.mechanics.energy) does not lock and approaches from above, as mixed u-p fiel
 import numpy as np
 import pytest
 
-from experiments.verify import REFERENCE_TIP, richardson, tip_displacement
+from experiments.verification.common import richardson
+from experiments.verification.cooks_membrane import REFERENCE_TIP, tip_displacement
 
 
 def check_convergence(spans, tolerance, formulation="displacement"):

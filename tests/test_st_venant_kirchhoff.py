@@ -3,7 +3,8 @@ lambda/2 (tr E)^2 + mu tr(E^2) in plane strain; its small-strain moduli are line
 uniaxial plane-strain stress is the closed form E'/2 (l^3 - l), E' = E / (1 - nu^2) (e.g. Holzapfel,
 Nonlinear solid mechanics, sec. 6.5; Belytschko, Liu and Moran, sec. 5.4.2); it is refused where
 it softens (below the stretch sqrt(1/3)); and a scene solves in it.  The uniaxial computation is
-experiments/verify.py's, whose report (make verify) shows it beside the closed form."""
+experiments/verification/st_venant_kirchhoff.py's, whose report (make verify) shows it beside the
+closed form."""
 
 import jax
 import jax.numpy as jnp
@@ -11,9 +12,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from experiments.verify import SVK_E as E
-from experiments.verify import SVK_NU as NU
-from experiments.verify import lateral_stretch, svk_uniaxial_stress
+from experiments.verification.st_venant_kirchhoff import SVK_E as E
+from experiments.verification.st_venant_kirchhoff import SVK_NU as NU
+from experiments.verification.st_venant_kirchhoff import lateral_stretch, svk_uniaxial_stress
 from nma.errors import ConfigError
 from nma.mechanics.laws import drucker_unstable, law_of, nominal_stress
 from nma.mechanics.material import Material
