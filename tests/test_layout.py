@@ -10,8 +10,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 # the modules that turn checked settings into objects: the commands, their helpers (nma.cli's
-# modules among them), the one resolver of `auto`, and the library's front door
-# (Simulator.from_config takes the same settings as the commands)
+# modules among them), the one resolver of `auto`, and the library's front doors
+# (Simulator.from_config and nma.periodic's periodic_cell take the same settings as the commands)
 COMMAND_LAYER = {
     "nma.cli",
     "nma.cli.compose",
@@ -30,6 +30,9 @@ COMMAND_LAYER = {
     "nma.resolve",
     "nma.simulator",
     "nma.train.runs",
+    "nma.periodic",
+    "nma.periodic.front",
+    "nma.periodic.__main__",
 }
 
 

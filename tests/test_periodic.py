@@ -1,0 +1,237 @@
+"""Periodic cells (nma.periodic): the tie across opposite edges, mixed macroscopic control, the
+effective response against closed forms, and the square array of circular holes' pattern
+transformation."""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+from scipy.spatial import cKDTree
+
+from nma.errors import ConfigError
+from nma.periodic import (
+    MacroLoad,
+    circular_holes,
+    follow,
+    periodic_cell,
+    shear,
+    square_array,
+    uniaxial,
+)
+
+
+@pytest.fixture(scope="module")
+def solid():
+    return periodic_cell(square_array(1, 1, solid=True))
+
+
+@pytest.fixture(scope="module")
+def porous():
+    """One cell of the square array of circular holes at porosity 0.5, at 3 Gauss points."""
+    cell = periodic_cell(square_array(1, 1), {"quad_points": 3})
+    params, phi = circular_holes(cell, 0.5)
+    return cell, params, phi
+
+
+def _plane_tangent(cell):
+    """The law's own plane-strain tangent at rest, C_ijkl = dP_ij/dF_kl at F = I (as
+    experiments/verify.py's plane_moduli)."""
+    return np.asarray(cell.disc.material.point_terms(cell.material_params)[2](jnp.eye(2)))
+
+
+def test_solid_cell_at_small_strain_has_the_law_tangent_modulus_and_poisson(solid):
+    # uniaxial stress in plane strain: E' = C1111 - C1122^2 / C2222, nu' = C1122 / C2222
+    # (nu / (1 - nu) and E / (1 - nu^2) for an isotropic law with a 3D-consistent volume term)
+    C = _plane_tangent(solid)
+    for axis, (a, b) in (("x", (0, 1)), ("y", (1, 0))):
+        path = follow(solid, uniaxial(axis, -1e-5), steps=1)
+        E_expected = C[a, a, a, a] - C[a, a, b, b] ** 2 / C[b, b, b, b]
+        nu_expected = C[a, a, b, b] / C[b, b, b, b]
+        k = 3 * a  # F11 or F22 in COMPONENTS order
+        assert path.P[0, k] / path.strain_axial[0] == pytest.approx(E_expected, rel=1e-4)
+        assert path.poisson[0] == pytest.approx(nu_expected, rel=1e-4)
+        assert path.valid.all() and path.lowest[0] > 0
+
+
+def _homogeneous_uniaxial(cell, lam1):
+    """The exact homogeneous plane-strain uniaxial state F = diag(lam1, lam2) with P22 = 0, by
+    root finding on the law's first Piola-Kirchhoff stress: (lam2, P11)."""
+    P = cell.disc.material.point_terms(cell.material_params)[1]
+    P_of = lambda l2: np.asarray(P(jnp.diag(jnp.array([lam1, l2]))))
+    lam2 = brentq(lambda l2: P_of(l2)[1, 1], 0.5, 2.0, xtol=1e-14)
+    return lam2, P_of(lam2)[0, 0]
+
+
+@pytest.mark.parametrize("material", [None, "yeoh"])
+def test_solid_cell_at_large_strain_follows_the_exact_homogeneous_response(solid, material):
+    # a pore-free cell deforms homogeneously: its response is the law's own uniaxial plane-strain
+    # state, found here by root finding on P22 = 0 (the paper's Neo-Hookean, and Yeoh's law)
+    cell = (
+        solid if material is None else periodic_cell(square_array(1, 1, solid=True), None, material)
+    )
+    path = follow(cell, uniaxial("x", -0.2), steps=4)
+    assert path.completed and path.valid.all()
+    for k in range(len(path.t)):
+        lam2, P11 = _homogeneous_uniaxial(cell, path.F[k, 0])
+        assert path.F[k, 3] == pytest.approx(lam2, rel=1e-9)
+        assert path.P[k, 0] == pytest.approx(P11, rel=1e-7)
+        assert abs(path.P[k, 3]) < 1e-9 * abs(P11)
+
+
+def test_porous_cell_is_periodic_to_round_off_under_shear(porous):
+    cell, params, _ = porous
+    path = follow(cell, shear(0.15, free_normal=True), steps=3, params=params)
+    assert path.completed and path.valid.all()
+    X = np.asarray(cell.reference_points(params))
+    pairs = cell.tied_pairs()
+    assert len(pairs) > 0
+    assert path.strain_axial[-1] == pytest.approx(0.15)  # shear's axial strain is gamma
+    for k in range(len(path.t)):
+        H = path.F[k].reshape(2, 2) - np.eye(2)
+        u = path.u[k]
+        jump = u[pairs[:, 0]] - u[pairs[:, 1]] - (X[pairs[:, 0]] - X[pairs[:, 1]]) @ H.T
+        assert np.max(np.abs(jump)) < 1e-12 * cell.period.max()
+        # the free normal components carry zero average stress (their energy is minimised)
+        assert np.max(np.abs(path.P[k, [0, 3]])) < 1e-7 * abs(path.P[k, 1])
+
+
+def test_average_stress_is_the_energy_derivative_by_central_differences(porous):
+    # Hill's lemma: at equilibrium dW_avg/dF_bar = <P>, whatever the fluctuation does
+    cell, params, _ = porous
+    F0, h = np.array([0.96, 0.03, 0.0, 1.02]), 1e-4
+    general = lambda F: MacroLoad("general", F, (), 0)
+    P = follow(cell, general(F0), steps=1, params=params).P[0]
+    for c in range(4):
+        e = np.zeros(4)
+        e[c] = h
+        Wp, Wm = (follow(cell, general(F0 + s * e), 1, params).energy[0] for s in (1, -1))
+        assert (Wp - Wm) / (2 * h) == pytest.approx(P[c], abs=1e-6 * np.abs(P).max())
+
+
+def test_scene_whose_opposite_edges_do_not_match_is_refused():
+    with pytest.raises(ConfigError, match="not periodic.*no partner"):
+        periodic_cell({"name": "notch", "cells": "PP\nP."})
+
+
+def test_periodic_scene_with_supports_or_groups_is_refused():
+    held = {
+        "name": "held",
+        "cells": "PP",
+        "supports": [{"segment": [[0, 0], [10, 0]], "kind": "clamped"}],
+    }
+    with pytest.raises(ConfigError, match="scene.supports must be empty"):
+        periodic_cell(held)
+    with pytest.raises(ConfigError, match="scene.groups must be empty"):
+        periodic_cell("translation")  # a finite scene, its sides pushed by actuated groups
+    with pytest.raises(ConfigError, match="F12 and F21 cannot both be free"):
+        MacroLoad("spin", np.array([1.0, 0.0, 0.0, 1.0]), (1, 2), 0)
+
+
+def test_circular_holes_reach_the_target_porosity(porous):
+    assert porous[2] == pytest.approx(0.5, abs=1e-6)
+
+
+@pytest.fixture(scope="module")
+def supercell():
+    """A 2 x 2 supercell of the square array of circular holes at porosity 0.5, at 3 Gauss
+    points."""
+    cell = periodic_cell(square_array(2, 2), {"quad_points": 3})
+    return cell, circular_holes(cell, 0.5)[0]
+
+
+def test_square_array_2x2_buckles_and_its_poisson_ratio_turns_negative(supercell):
+    # Mullin et al., PRL 99, 084301 (2007); Bertoldi et al., Adv. Mater. 22, 361 (2010), Fig. 2:
+    # under uniaxial compression a square array of circular holes at porosity ~0.5 buckles into
+    # alternating ellipses (a 2 x 2 cell pattern) and its Poisson's ratio falls below zero
+    cell, params = supercell
+    path = follow(cell, uniaxial("y", -0.1), steps=5, params=params)
+    assert path.completed and path.valid.all()
+    assert path.critical is not None and -0.1 < path.critical["strain"] < -0.01
+    after = path.strain_axial < path.critical["strain"]
+    assert np.all(np.diff(path.poisson[after]) < 0)
+    assert path.poisson[-1] < 0 < path.poisson[0]
+    assert np.all(path.lowest > 0)  # every reported state on the followed branch is stable
+    # the mode alternates: neighbouring cells' pores turn opposite ways, so the mode is not
+    # periodic on a single cell (its displacement differs one cell apart)
+    mode, X = path.critical["mode_u"], np.asarray(cell.reference_points(params))
+    shifted = cKDTree(X).query(X + [1.0, 0.0])
+    inside = shifted[0] < 1e-9
+    assert np.max(np.abs(mode[inside] + mode[shifted[1][inside]])) < 1e-6 * np.abs(mode).max()
+
+
+def test_symmetric_path_past_the_bifurcation_is_a_saddle(supercell):
+    # without leaving the saddle the path stays on the unbuckled branch: an unstable equilibrium
+    # (a negative eigenvalue), its Poisson's ratio still positive
+    cell, params = supercell
+    path = follow(cell, uniaxial("y", -0.1), steps=2, params=params, escape=False)
+    assert path.completed and path.critical is not None
+    assert path.lowest[-1] < 0 and path.poisson[-1] > 0
+
+
+def test_command_line_writes_the_path_and_refuses_bad_input(solid, tmp_path, capsys):
+    from nma.periodic.__main__ import main
+
+    out, fig = tmp_path / "path.json", tmp_path / "path.png"
+    argv = ["--cells", "1", "1", "--solid", "--load", "uniaxial_x", "--strain", "-0.05"]
+    assert main(argv + ["--steps", "2", "--json", str(out), "--figure", str(fig)]) == 0
+    written = json.loads(out.read_text())
+    assert written["strain_axial"] == pytest.approx([-0.025, -0.05])
+    assert len(written["poisson"]) == 2 and written["critical"] is None
+    assert fig.stat().st_size > 0
+    assert "no bifurcation" in capsys.readouterr().out
+    assert main(argv[:-1] + ["-2.0"]) == 2  # a strain out of (-0.9, 10)
+    assert "load.strain must be a nominal strain" in capsys.readouterr().err
+
+
+def test_effective_response_gradient_matches_central_differences(porous):
+    # implicit differentiation of the reduced equations (nma.periodic.gradients) against central
+    # differences of whole path solves, along every radius at once and along E
+    from nma.periodic.gradients import path_gradient
+
+    cell, params, _ = porous
+    load, h = uniaxial("y", -0.03), 1e-5
+    solve = lambda params, mat=None: follow(cell, load, 2, params, mat, check_states=False)
+    path = solve(params)
+    m = np.asarray(cell.material_params)
+    for kind, component, read in (
+        ("stress", 3, lambda r: r.P[1, 3]),
+        ("free", 0, lambda r: r.F[1, 0]),
+    ):
+        q, d_params, d_mat = path_gradient(cell, load, path, 1, params, kind, component)
+        assert q == pytest.approx(read(path), rel=1e-10)
+        up, down = ({"radii": params["radii"] + s * h} for s in (1, -1))
+        fd = (read(solve(up)) - read(solve(down))) / (2 * h)
+        assert float(jnp.sum(d_params["radii"])) == pytest.approx(fd, rel=1e-5)
+        E_up, E_down = (m * [1 + s * h, 1] for s in (1, -1))
+        fd = (read(solve(params, E_up)) - read(solve(params, E_down))) / (2 * h * m[0])
+        assert d_mat[0] == pytest.approx(fd, rel=1e-5, abs=1e-9 * abs(q))
+
+
+def test_bad_load_or_steps_are_refused_naming_the_field(solid):
+    with pytest.raises(ConfigError, match=r"steps must be an integer in \[1, 10000\], got 0"):
+        follow(solid, uniaxial("x", -0.1), steps=0)
+    with pytest.raises(ConfigError, match=r"load.axis must be one of \['x', 'y'\]"):
+        uniaxial("z", -0.1)
+    with pytest.raises(
+        ConfigError, match=r"load.strain must be a nominal strain in \(-0.9, 10.0\)"
+    ):
+        uniaxial("x", -1.5)
+    with pytest.raises(ValueError, match=r"params\['radii'\] must have shape \(0, 12\)"):
+        follow(solid, uniaxial("x", -0.1), params={"radii": jnp.zeros((1, 12))})
+
+
+def test_contact_keeps_the_closing_pores_apart_where_without_it_they_cross(supercell):
+    # at 30% compression the buckled pores close to slits: without contact their walls pass
+    # through each other (nma.geometry.validity says so), with the pores' contact they touch
+    cell, params = supercell
+    load = uniaxial("y", -0.3)
+    without = follow(cell, load, steps=3, params=params)
+    assert not without.valid[-1]
+    assert any("crosses itself" in p for p in without.problems[-1][1])
+    touching = periodic_cell(square_array(2, 2), {"quad_points": 3}, contact={"enabled": True})
+    path = follow(touching, load, steps=3, params=params)
+    assert path.completed and path.valid.all()
+    # the walls in contact carry load: the cell stiffens against the one without contact
+    assert path.P[-1, 3] < without.P[-1, 3] < 0
