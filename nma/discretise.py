@@ -35,6 +35,8 @@ class Discretisation:
     tracked: dict = field(default_factory=dict)
     # a dead load per unit reference area (2,), density x gravity; None: none
     body_force: tuple[float, float] | None = None
+    # the density that body force was made with, where known: a run in time's mass must be the same
+    body_density: float | None = None
 
     @property
     def mesh(self) -> Mesh:
@@ -122,6 +124,7 @@ def discretise(
     contact=None,
     material: Material | str = "displacement",
     body_force: tuple[float, float] | None = None,
+    body_density: float | None = None,
 ) -> Discretisation:
     """The analysis model of a scene at a concrete `fidelity` (a Resolution or a setting with its
     fields: the control points and Gauss points per patch, the inversion barrier; an `auto` is
@@ -129,7 +132,8 @@ def discretise(
     pores' self-contact where `contact` (nma.mechanics.contact.ContactSettings) is given, and the
     `material` (its law and formulation; a formulation's name, one of
     nma.mechanics.options.FORMULATIONS: the Neo-Hookean law's), and a dead load per unit reference
-    area `body_force` (density x gravity: SceneConfig.body_force), None: none."""
+    area `body_force` (density x gravity: SceneConfig.body_force), None: none, made with the
+    density `body_density` where given (Dynamics refuses a mass of another)."""
     material = material if isinstance(material, Material) else Material(material)
     fidelity = Resolution.of(fidelity)
     design = make_design(spec)
@@ -168,6 +172,7 @@ def discretise(
         boundary=boundary,
         tracked=tracked,
         body_force=None if body_force is None else tuple(float(b) for b in body_force),
+        body_density=None if body_force is None or body_density is None else float(body_density),
     )
 
 

@@ -192,7 +192,7 @@ def test_library_defaults_are_the_configs(strip):
     schema = DynamicsConfig()
     signature = inspect.signature(Dynamics).parameters
     shared = [name for name in signature if hasattr(schema, name) and name != "scheme"]
-    assert len(shared) == 11
+    assert len(shared) == 12
     for name in shared:
         assert signature[name].default == getattr(schema, name), name
     loaded = config.load("dynamics", "newmark")

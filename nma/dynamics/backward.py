@@ -40,8 +40,8 @@ class Sweep:
     """The adjoint sweep of one sample: `step(s)` for every accepted step, the last first, then
     `result()`: (X_bar, coeffs_bar, mat_bar)."""
 
-    def __init__(self, dyn, stepper, u_bar, v_bar, intervals: int):
-        self.dyn, self.stepper = dyn, stepper
+    def __init__(self, dyn, stepper, u_bar, v_bar, intervals: int, z0):
+        self.dyn, self.stepper, self.z0 = dyn, stepper, z0  # z0: the state at t = 0
         self.u_bar, self.v_bar = (np.asarray(a).reshape(dyn.steps + 1, -1) for a in (u_bar, v_bar))
         self.design_bar = jax.tree_util.tree_map(jnp.zeros_like, stepper.design)
         self.mat_bar = np.zeros(stepper.mat.shape)
@@ -85,11 +85,18 @@ class Sweep:
 
     def result(self):
         dyn, s, k = self.dyn, self.stepper, self.dyn.kernels
-        # the state at t = 0 holds the actuation there: u_D(0) = A d(coeffs, 0)
+        # the state at t = 0 holds the actuation there: u_D(0) = A d(coeffs, 0); and the start's
+        # own dependence on the design, material and actuation (nma.dynamics.initial)
         d_bar = dyn.A.T @ self.zb[0][dyn.dirichlet]
+        X_0, design_0, mat_0, d_bar = dyn.initial.pullback(s, self.z0, self.zb, d_bar)
+        if design_0 is not None:
+            self.design_bar = jax.tree_util.tree_map(jnp.add, self.design_bar, design_0)
+        if mat_0 is not None:
+            self.mat_bar += np.asarray(mat_0)
         self.c_bar += np.asarray(k.actuation_vjp(s.coeffs, 0.0, jnp.asarray(d_bar)))
         X_b, mat_b = k.design_vjp(s.X, s.mat, self.design_bar)
-        return np.asarray(X_b), self.c_bar, self.mat_bar + np.asarray(mat_b)
+        X_b = np.asarray(X_b) if X_0 is None else np.asarray(X_b) + np.asarray(X_0)
+        return X_b, self.c_bar, self.mat_bar + np.asarray(mat_b)
 
 
 def differentiable(dyn):

@@ -12,7 +12,7 @@ import numpy as np
 from .. import checks
 from ..errors import ConfigError
 from ..mechanics.options import DENSITY_RANGE
-from .options import ADJOINTS, CONTROLLERS, RANGES, SCHEMES
+from .options import ADJOINTS, CONTROLLERS, RANGES, SCHEMES, STARTS
 
 
 def ranges() -> dict[str, str]:
@@ -39,6 +39,8 @@ def check_dynamics(sim, o, density, waveform, v0, workers, parts) -> None:
             continue
         if not isinstance(value, str) or value not in registry.names():
             raise ConfigError(f"{where}: {name} must be one of {registry.names()}, got {value!r}")
+    if o.start not in STARTS:
+        raise ConfigError(f"{where}: start must be one of {list(STARTS)}, got {o.start!r}")
     numbers = [
         ("rho_inf", o.rho_inf),
         ("density", density),
@@ -49,6 +51,13 @@ def check_dynamics(sim, o, density, waveform, v0, workers, parts) -> None:
     ] + ([("dt", o.dt)] if o.dt is not None else [])
     for name, value in numbers:
         checks.number(where, name, value, spec[name])
+    weighed = sim.disc.body_density
+    if sim.disc.body_force is not None and weighed is not None and float(density) != weighed:
+        raise ConfigError(
+            f"{where}: density must be the one the scene's weight was made with, "
+            f"material.density = {weighed:g}, got {float(density):g}: the mass and the body force "
+            "would be of two materials"
+        )
     checks.integer(where, "steps", o.steps, spec["steps"])
     checks.integer(where, "max_cuts", o.max_cuts, spec["max_cuts"])
     if o.checkpoints is not None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, fields
 from typing import Optional
 
 from ..registry import Registry
-from ..settings import bounded, option
+from ..settings import bounded, choice, option
 
 SCHEMES: Registry = Registry("dynamics.scheme")
 SCHEMES.declare("newmark", "nma.dynamics.schemes.newmark:newmark")
@@ -31,6 +31,8 @@ CONTROLLERS: Registry = Registry("dynamics.controller")
 CONTROLLERS.declare("cuts", "nma.dynamics.controllers.cuts:Cuts")
 CONTROLLERS.declare("fixed", "nma.dynamics.controllers.fixed:Fixed")
 CONTROLLERS.declare("adaptive", "nma.dynamics.controllers.adaptive:Adaptive")
+
+STARTS = ("rest", "static")  # dynamics.start: where a trajectory starts (nma.dynamics.initial)
 
 ADJOINTS: Registry = Registry("dynamics.adjoint")
 ADJOINTS.declare("store_all", "nma.dynamics.adjoints.store_all:StoreAll")
@@ -108,6 +110,14 @@ class DynamicsOptions:
         None,
         "[1, 1000000]",
         doc="checkpointed: the states kept; null: ceil(sqrt(steps)) intervals apart",
+    )
+    start: str = choice(
+        "rest",
+        STARTS,
+        doc="where the trajectory starts: rest (u = 0 but the actuation's value at t = 0, v = 0; "
+        "a dead load, scene.gravity or a traction, applied at once at t = 0: the body falls and "
+        "oscillates about its sagged state), static (the static equilibrium under the dead load "
+        "and the actuation's value at t = 0, v = 0: nothing moves unless the actuation does)",
     )
 
 

@@ -3,9 +3,10 @@
 over `dynamics.ramp`, then held): every state's validity, the energies, the tracked points over
 time against the static equilibrium, and whether the static model would have sufficed.
 
-One modal solve per command: statically about the equilibrium solved; in time at rest, where the
-run starts, whose lowest frequency also sets the time step, the ramp and the damping where the
-settings leave them open."""
+One modal solve per command: statically about the equilibrium solved; in time at rest (where a run
+from rest starts; dynamics.start=static starts at the static equilibrium under the dead load), whose
+lowest frequency also sets the time step, the ramp and the damping where the settings leave them
+open."""
 
 from __future__ import annotations
 
@@ -83,8 +84,9 @@ def lowest_of(modes: dict) -> float:
 
 
 def over_time(s, sim, X, d, mat, u_static, out_dir: Path, modes: dict) -> dict:
-    """The actuation d applied over time from rest, `modes` the natural frequencies at rest
-    (`frequencies`); the trajectory goes to out_dir/trajectory.h5."""
+    """The actuation d applied over time from the start dynamics.start (rest, or the static
+    equilibrium under the scene's dead load: nma.dynamics.initial), `modes` the natural
+    frequencies at rest (`frequencies`); the trajectory goes to out_dir/trajectory.h5."""
     from ..geometry.validity import StateChecker, summarise
     from ..io.fields import write_trajectory
 
@@ -143,6 +145,7 @@ def over_time(s, sim, X, d, mat, u_static, out_dir: Path, modes: dict) -> dict:
             "scheme": o.scheme,
             "controller": o.controller,
             "adjoint": o.adjoint,
+            "start": o.start,
             "dt": dyn.dt,
             "steps": dyn.steps,
             "ramp": ramp,

@@ -42,10 +42,8 @@ class Stepper:
         self.design = self.kernels.design(self.X, self.mat)
 
     def start(self):
-        """The state at t = 0: at rest where the actuation starts (v0 where given)."""
-        k, dyn = self.kernels, self.dyn
-        u0 = k.full(jnp.zeros(len(dyn.free)), k.actuation(self.coeffs, 0.0))
-        return np.asarray(u0), dyn.v0, np.zeros(dyn.n)
+        """The state at t = 0, the Dynamics' start's (nma.dynamics.initial)."""
+        return self.dyn.initial.state(self)
 
     def step(self, z, t0: float, h: float, k: int, j: int, previous):
         """The step from z at t0 to t0 + h, the j-th of interval k: (Step, NewtonInfo, its end's

@@ -2,7 +2,9 @@
 
 A step's residual, with u_{n+1} = (free u_f, prescribed u_D(t_{n+1})) and the state z_n = (u, v, a),
     R(u_f; z_n, X, mat, u_D) = f(u_{n+1}) + B u_{n+1} - b(z_n) - f_ext        (free rows)
-is the static residual with the step's Inertia (nma.dynamics.schemes).  Its adjoint: for cotangents
+is the static residual with the step's Inertia (nma.dynamics.schemes), the dead load f_ext
+(scene.gravity, a traction) at full load in every step, and in b's alpha_f term too (the net force
+f(u_n) - f_ext at t_n).  Its adjoint: for cotangents
 (u_bar, v_bar, a_bar) of z_{n+1}, the explicit update (v, a)_{n+1} = U(u_{n+1}, z_n) passes its part
 on to u_{n+1} and z_n; then lambda = K_eff^-1 u_bar_f with K_eff = K(u_{n+1}) + B, and
 (z_n, X, mat, u_D)_bar -= lambda^T dR/d(z_n, X, mat, u_D), u_D also receiving u_bar's prescribed
@@ -20,6 +22,7 @@ import jax.numpy as jnp
 
 from ..mechanics.energy import quadrature, strain_energy
 from ..solver.equations import Equations
+from .initial import has_dead_load
 from .mass import mass_blocks, rayleigh, stiffness_at_rest
 from .schemes import Scheme
 
@@ -55,11 +58,13 @@ def _design(eqs, scheme, density, alpha, beta, X, mat):
 
 
 def internal_force(eqs: Equations, quad, mat, u, scheme: Scheme | None = None):
-    """The strain energy's gradient at u (flat, every dof); 0 for a scheme that does not use it
-    (alpha_f 0)."""
+    """The strain energy's gradient at u (flat, every dof) less the dead load (scene.gravity, a
+    traction), which acts at t_n as at t_{n+1}: the force the scheme weighs by alpha_f; 0 for a
+    scheme that does not use it (alpha_f 0)."""
     if scheme is not None and scheme.alpha_f == 0.0:
         return jnp.zeros_like(u)
-    return jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
+    f = jax.grad(lambda w: strain_energy(eqs.solid, quad, w.reshape(-1, 2), mat))(u)
+    return f - eqs.external_force(quad) if has_dead_load(eqs) else f
 
 
 def _inertia_of(eqs, scheme, quad, M, C, mat, u, v, a, dt):

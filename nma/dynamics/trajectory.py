@@ -32,6 +32,7 @@ from .adjoints import Adjoint
 from .backward import Sweep, TrajectoryInfo, differentiable
 from .checks import check_dynamics, check_run, checked_function
 from .controllers import Controller
+from .initial import Initial
 from .options import ADJOINTS, CONTROLLERS, DEFAULTS, DynamicsOptions
 from .schemes import Scheme
 from .stepper import Stepper
@@ -64,13 +65,17 @@ class Dynamics:
         alpha, beta: Rayleigh damping C = alpha M + beta K_0.
         waveform: f(coeffs, t) -> actuations at time t, traceable (nma.dynamics.waveform.Fourier).
         max_cuts: The shortest step is dt / 2^max_cuts (controllers cuts and adaptive).
-        v0: Initial velocity (n_points, 2) or None (rest); undamped only (its initial acceleration
-            is 0).
+        v0: Initial velocity (n_points, 2) or None (0); undamped only (damping would take a part of
+            the initial acceleration).
         workers: Threads solving a batch's samples at once (None: the simulator's).
         controller: A name in nma.dynamics.options.CONTROLLERS (`fixed`, `cuts`, `adaptive`) or a
             Controller; rtol and atol are adaptive's tolerances.
         adjoint: A name in nma.dynamics.options.ADJOINTS (`store_all`, `checkpointed`) or an
             Adjoint; checkpoints: checkpointed's kept states (None: ceil(sqrt(steps)) apart).
+        start: Where each trajectory starts (nma.dynamics.initial): `rest` (u = 0 but the
+            actuation's value at t = 0, v = 0; a dead load, scene.gravity or a traction, applied at
+            once at t = 0) or `static` (the static equilibrium under the dead load and the
+            actuation's value at t = 0, v = 0).
     """
 
     def __init__(
@@ -92,6 +97,7 @@ class Dynamics:
         atol: float = DEFAULTS.atol,
         adjoint: str | Adjoint = DEFAULTS.adjoint,
         checkpoints: int | None = DEFAULTS.checkpoints,
+        start: str = DEFAULTS.start,
     ):
         parts = {"controller": controller, "adjoint": adjoint}
         named = {k: p if isinstance(p, str) else type(p).__name__ for k, p in parts.items()}
@@ -108,17 +114,13 @@ class Dynamics:
             atol,
             named["adjoint"],
             checkpoints,
+            start,
         )
         check_dynamics(sim, options, density, waveform, v0, workers, parts)
-        if np.any(np.asarray(sim.equations.f_ext)) or sim.equations.body is not None:
-            raise ConfigError(
-                "dynamics starts at rest: a scene with a dead load (a traction, scene.gravity) "
-                "would start out of balance"
-            )
         if v0 is not None and (alpha or beta):
             raise ConfigError(
-                "dynamics: an initial velocity needs no damping (alpha = beta = 0), "
-                "so that the initial acceleration is 0"
+                "dynamics: an initial velocity needs no damping (alpha = beta = 0): the "
+                "initial acceleration leaves the damping force out"
             )
         if dt is None:
             from .settings import lowest_frequency, time_step
@@ -135,6 +137,7 @@ class Dynamics:
         )
         self.adjoint = ADJOINTS.get(adjoint)(options) if isinstance(adjoint, str) else adjoint
         self.waveform = waveform
+        self.initial = Initial(self, start)
         self.kernels = StepKernels(self.eqs, self.scheme, density, alpha, beta, waveform)
         self.newton = HostNewton(self.eqs, sim.backend, sim.options)
         self.free, self.dirichlet = np.asarray(self.eqs.free), np.asarray(self.eqs.dirichlet)
@@ -189,6 +192,7 @@ class Dynamics:
             s.atol,
             s.adjoint,
             s.checkpoints,
+            s.start,
         )
 
     @property
@@ -252,7 +256,7 @@ class Dynamics:
                 int(k): tuple(np.asarray(x[i]).reshape(-1) for x in kept)
                 for i, k in enumerate(index)
             }
-            sweep = Sweep(self, stepper, u_bar, v_bar, int(intervals))
+            sweep = Sweep(self, stepper, u_bar, v_bar, int(intervals), states.get(0))
             for step in self.adjoint.steps_back(
                 self, stepper, states, counts, control, int(intervals)
             ):
