@@ -13,6 +13,7 @@ from omegaconf import OmegaConf
 
 from . import schema
 from .errors import ConfigError
+from .schema.periodic import LoadConfig, PeriodicSceneConfig
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 GROUP_SCHEMAS = {
@@ -26,6 +27,7 @@ GROUP_SCHEMAS = {
     "trainer": schema.TrainerConfig,
     "logger": schema.LoggerConfig,
     "dynamics": schema.DynamicsConfig,
+    "load": LoadConfig,
 }
 
 
@@ -51,4 +53,6 @@ def load(group: str, name: str) -> dict:
     if group == "task":
         body.setdefault("name", name)
     kind = schema.task_schema(body, defaults) if group == "task" else GROUP_SCHEMAS[group]
+    if group == "scene" and body.get("periodic"):
+        kind = PeriodicSceneConfig
     return OmegaConf.to_container(OmegaConf.structured(schema.build(kind, body)))

@@ -1,18 +1,23 @@
 """One static solve from the command line, or with dynamics the actuation applied over time.
 
     python -m nma.simulate scene=translation actuation=[1.0,-0.5] [dynamics=newmark]
+    python -m nma.simulate scene=square_array load=uniaxial_y load.strain=-0.2
 
 Writes fields.h5 + fields.xdmf and deformation.png into the Hydra run directory and prints one JSON
 object on the last line of stdout (scene, dofs, tracked, energy, load_steps, newton_iterations,
 converged, valid, validity, seconds, natural_frequencies: about the equilibrium, or with dynamics
-at rest, where the run starts; with dynamics, `dynamics`: nma.dynamics.report; `plane_strain`: the
-material's volume term and the plane modulus and in-plane Poisson's ratio it gives at small strain,
-beside the 3D-consistent E / (1 - nu^2) and nu / (1 - nu): nma.mechanics.material);
+at rest, whichever dynamics.start; with dynamics, `dynamics`: nma.dynamics.report; `plane_strain`:
+the material's volume term and the plane modulus and in-plane Poisson's ratio it gives at small
+strain, beside the 3D-consistent E / (1 - nu^2) and nu / (1 - nu): nma.mechanics.material);
 a value that is not finite is written as null, so the line is
 always JSON.  `valid` says whether the equilibrium is a physical object (nma/geometry/validity.py:
 det F over the whole material, no boundary curve through itself or another); `validity` has the
 details. With dynamics, `converged` and `valid` are the run in time's too: every time step
 converged, and every state of the trajectory (each checked) is a physical object.
+A periodic scene (scene.periodic) follows its macroscopic load instead (load=uniaxial_y etc.,
+conf/load/; nma.periodic.command): the JSON line lists every state's strains, average nominal
+stress, Poisson's ratio and validity, and the critical strain of a bifurcation crossed; fields.h5
+holds the last state, mode.h5 the bifurcation's mode, path.png the tiled cell and its curves.
 Exit codes as in nma.cli: 2 for bad input (before any work), 1 if the solve cannot reach full
 load or a time step fails (one line on stderr says when and why; the JSON line says how far it got).
 """
@@ -52,6 +57,10 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     from .runtime import configure_jax
 
     configure_jax()
+    if s.scene.periodic:  # a load path of F_bar, not an actuation
+        from .periodic.command import run as follow_path
+
+        return follow_path(s, out_dir)
     import jax.numpy as jnp
     import numpy as np
 
@@ -150,7 +159,7 @@ def run(s: SimulateConfig, out_dir: Path) -> dict:
     )
     from .dynamics import report
 
-    # one modal solve: about this equilibrium; in time at rest, where the run starts (its time step)
+    # one modal solve: about this equilibrium; in time at rest (its time step, either start)
     about = () if s.dynamics.enabled else (d, eq.u)
     modes = report.frequencies(sim, X, mat, s.material.density, *about)
     result.update(modes)

@@ -115,14 +115,20 @@ class Simulator:
             workers: Threads in place of `solver.workers`; None: `solver.workers`.
 
         Returns:
-            The simulator of those settings.
+            The simulator of those settings (ConfigError for a periodic scene).
         """
+        if getattr(s.scene, "periodic", False):
+            raise ConfigError(
+                f"scene {s.scene.name} is periodic: the Simulator solves finite scenes held by "
+                "their supports (nma.periodic.periodic_cell builds a periodic one)"
+            )
         disc = discretise(
             scene_from_config(s.scene),
             s.fidelity,
             contact_options(s.contact),
             material_of(s.material),
             s.scene.body_force(s.material.density),
+            s.material.density,
         )
         sim = cls(
             disc,

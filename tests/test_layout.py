@@ -11,7 +11,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the modules that turn checked settings into objects: the commands, their helpers (nma.cli's
 # modules among them), the one resolver of `auto`, and the library's front doors
-# (Simulator.from_config and nma.periodic's periodic_cell take the same settings as the commands)
+# (Simulator.from_config and nma.periodic's periodic_cell take the same settings as the commands;
+# nma.periodic.command is nma.simulate's periodic branch)
 COMMAND_LAYER = {
     "nma.cli",
     "nma.cli.compose",
@@ -32,7 +33,7 @@ COMMAND_LAYER = {
     "nma.train.runs",
     "nma.periodic",
     "nma.periodic.front",
-    "nma.periodic.__main__",
+    "nma.periodic.command",
 }
 
 

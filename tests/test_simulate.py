@@ -172,8 +172,9 @@ def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
     static one."""
     proc = simulate(
         tmp_path,
-        "scene=translation",
-        "actuation=[4.0,-4.0]",
+        "scene=strip",
+        "fidelity=fast",
+        "actuation=[2.0,2.0]",
         "dynamics=newmark",
         "dynamics.steps=4",
         "dynamics.ramp=0",
@@ -182,7 +183,7 @@ def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
     )
     assert proc.returncode == 1, proc.stderr[-2000:]
     line = proc.stderr.strip().splitlines()[-1]
-    assert line.startswith("error: scene translation") and "time stepping failed: time step" in line
+    assert line.startswith("error: scene strip") and "time stepping failed: time step" in line
     assert " of 4, from t = " in line and "did not converge (dynamics.max_cuts=0: not cut)" in line
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     dyn = result["dynamics"]

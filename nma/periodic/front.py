@@ -45,7 +45,14 @@ def periodic_cell(
         ConfigError: A setting out of its range, a scene with supports, groups or more than one
             pinned point, or one whose opposite edges do not match (naming the point).
     """
-    s = library_settings(periodic_scene(scene), fidelity, None, contact, formulation, material)
+    return cell_of(
+        library_settings(periodic_scene(scene), fidelity, None, contact, formulation, material)
+    )
+
+
+def cell_of(s) -> PeriodicCell:
+    """The periodic cell of resolved settings with a periodic `scene`, `fidelity`, `contact` and
+    `material` (nma.resolve: library_settings, or nma.simulate's)."""
     disc = discretise(
         s.scene.spec(), s.fidelity, contact_options(s.contact), material_of(s.material)
     )

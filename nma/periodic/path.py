@@ -11,6 +11,7 @@ path.poisson, path.P[:, 3], path.critical      # Poisson's ratio, nominal stress
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from .. import checks
@@ -42,6 +43,7 @@ def follow(
     escape: bool = True,
     settings: NewtonSettings | None = None,
     check_states: bool = True,
+    points=None,
 ) -> PathResult:
     """Follow `load` from F_bar = I to its target, reporting at `steps` equally spaced points.
 
@@ -56,13 +58,19 @@ def follow(
         escape: Past a bifurcation, leave the saddle along the unstable mode (needs stability).
         settings: Newton's settings.
         check_states: Run nma.geometry.validity's checks on every output state.
+        points: The reference control points in place of params' (a design map's output, such
+            as a network's); checked to match across the periodic edges.
 
     Returns:
         The PathResult; a path that cannot go on (an increment cut below min_increment) ends early
         with completed False and its message.
     """
     steps, s = _checked_steps(steps), settings or NewtonSettings()
-    X = cell.reference_points(params)
+    if points is None:
+        X = cell.reference_points(params)
+    else:
+        X = jnp.asarray(points, float)
+        cell.check_matching(np.asarray(X))
     mat = checks.material_input(cell.material_params if mat is None else mat, cell.disc.material)
     p = PeriodicProblem(cell, X, mat, load)
     checker = StateChecker(cell.disc.mesh, np.asarray(X)) if check_states else None

@@ -22,6 +22,7 @@ from .physics import (
     SolverConfig,
 )
 from .effect import check_fit, check_simulate
+from .periodic import LOAD_KINDS, LoadConfig
 from .scene import SceneConfig
 from ..tasks.schemas import TASK_SCHEMAS, TaskConfig
 from .training import LoggerConfig, ModelConfig, OptimConfig, TrainerConfig
@@ -47,6 +48,17 @@ class TrainConfig:
     def __post_init__(self):
         if not isinstance(self.task, TaskConfig):
             raise ConfigError(f"task must be one of {sorted(TASK_SCHEMAS)}")
+        periodic = bool(getattr(self.task, "periodic", False))
+        if self.scene.periodic != periodic:
+            raise ConfigError(
+                f"scene={self.scene.name} is periodic (a cell tiled without end, loaded by F_bar) "
+                f"and task {self.task.factory} trains on a finite scene held by its supports; a "
+                f"periodic scene's response: python -m nma.simulate scene={self.scene.name} "
+                "load=uniaxial_y (docs/how-to/periodic-metamaterials.md)"
+                if self.scene.periodic
+                else f"task {self.task.factory} trains a periodic cell: scene={self.scene.name} is "
+                "finite (give a periodic scene: scene.periodic=true)"
+            )
         if self.task.name != self.scene.name:
             raise ConfigError(
                 f"scene={self.scene.name} does not fit task={self.task.name}; "
@@ -101,10 +113,20 @@ class SimulateConfig:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     # one value per actuation of the scene; null means all zero
     actuation: Optional[List[float]] = None
+    # load=<kind>: a periodic scene's macroscopic load path (conf/load/); null: a finite scene's
+    load: Optional[LoadConfig] = None
     output: OutputConfig = field(default_factory=OutputConfig)
 
     def __post_init__(self):
         check_simulate(self)
+        if self.scene.periodic:
+            self._check_periodic()
+        elif self.load is not None:
+            raise ConfigError(
+                f"load={self.load.kind} loads a periodic scene, and scene={self.scene.name} is "
+                "finite (held by its supports, moved by actuation=[...]): leave load out, or "
+                "choose a periodic scene (scene.periodic=true, e.g. scene=square_array)"
+            )
         if self.actuation is None:
             return
         if not all(math.isfinite(a) for a in self.actuation):
@@ -113,6 +135,25 @@ class SimulateConfig:
             raise ConfigError(
                 f"actuation must have {self.scene.n_actuations} entries for scene "
                 f"{self.scene.name}, got {len(self.actuation)}: {self.actuation}"
+            )
+
+    def _check_periodic(self):
+        """A periodic scene follows a load path: no actuation, no dynamics."""
+        name = self.scene.name
+        if self.load is None:
+            raise ConfigError(
+                f"scene={name} is periodic: give its macroscopic load, load=<one of "
+                f"{list(LOAD_KINDS)}> (conf/load/; load.strain=..., load.steps=...)"
+            )
+        if self.actuation:
+            raise ConfigError(
+                f"actuation={self.actuation}: scene={name} is periodic, with no actuated groups; "
+                "its load is F_bar (load=...)"
+            )
+        if self.dynamics.enabled:
+            raise ConfigError(
+                f"dynamics.scheme={self.dynamics.scheme}: scene={name} is periodic, and its load "
+                "path is static (a sequence of equilibria); leave dynamics off"
             )
 
 

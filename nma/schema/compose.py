@@ -10,6 +10,7 @@ from typing import Any
 from ..errors import ConfigError
 from ..geometry.scene import SceneSpec
 from .commands import EvaluateConfig, ExportConfig, FitConfig, SimulateConfig, TrainConfig
+from .periodic import PeriodicSceneConfig
 from .physics import MaterialConfig
 from .scene import SceneConfig
 from ..settings import _kind
@@ -33,10 +34,12 @@ def build(schema: type, values: Any = None):
 
 
 def scene_config(cfg: Any) -> SceneConfig:
-    """A checked SceneConfig from itself or a mapping (cells as one string or a list of rows)."""
+    """A checked SceneConfig from itself or a mapping (cells as one string or a list of rows); a
+    periodic one (`periodic: true`) is a PeriodicSceneConfig."""
     if isinstance(cfg, Mapping) and not isinstance(cfg.get("cells", ""), str):
         cfg = {**cfg, "cells": "\n".join(cfg["cells"])}
-    return build(SceneConfig, cfg)
+    periodic = isinstance(cfg, Mapping) and bool(cfg.get("periodic", False))
+    return build(PeriodicSceneConfig if periodic else SceneConfig, cfg)
 
 
 def scene_from_config(cfg: Any) -> SceneSpec:
@@ -123,6 +126,8 @@ def register() -> None:
     cs.store(name="export_schema", node=ExportConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="fit_schema", node=FitConfig)
+    # a periodic scene's file names it in its defaults (conf/scene/square_array.yaml)
+    cs.store(group="scene", name="periodic_scene_schema", node=PeriodicSceneConfig)
     for name in law_names():  # a law from an installed package: material=<name> needs no file
         if not builtin(name):  # checked with the rest of the command's settings
             cs.store(group="material", name=name, node=MaterialConfig.fields_of_law(name))

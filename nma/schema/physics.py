@@ -234,6 +234,7 @@ class DynamicsConfig(Schema):
     atol: float = like(DynamicsOptions, "atol")
     adjoint: str = like(DynamicsOptions, "adjoint", choices=tuple(ADJOINTS.names()))
     checkpoints: Optional[int] = like(DynamicsOptions, "checkpoints")
+    start: str = like(DynamicsOptions, "start")
 
     # settings each part alone takes: (the part's setting, its value there, the settings)
     PART_SETTINGS: ClassVar[tuple] = (

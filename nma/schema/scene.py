@@ -12,7 +12,7 @@ from omegaconf import MISSING
 from ..errors import ConfigError
 from ..geometry.scene import Group, SceneSpec, Support
 from ..mechanics.options import VOLUMETRIC
-from ..settings import Schema, _points, bounded, choice
+from ..settings import Schema, _points, bounded, choice, option
 from .scene_checks import SceneChecks
 
 
@@ -141,6 +141,13 @@ class SceneConfig(Schema, SceneChecks):
     # neighbours', 3 design radii per side), not at an angle: no re-entrant corner, so no singular
     # stress there for refinement to chase; false: the paper's pores, a radius per corner
     round_pore_corners: bool = False
+    periodic: bool = option(
+        False,
+        "a periodic cell: opposite edges tied, no supports, groups or actuations, loaded by a "
+        "macroscopic deformation gradient (nma.simulate's load group; "
+        "docs/how-to/periodic-metamaterials.md); its scene file names periodic_scene_schema "
+        "(nma.schema.periodic.PeriodicSceneConfig) in its defaults",
+    )
     # contact=auto (the commands' default) turns the pores' self-contact on for a scene that says
     # so: one whose pores close under its task's actuations, where without contact they pass through
     # themselves

@@ -205,7 +205,9 @@ class SceneChecks:
     def _check_held(self):
         """The Dirichlet conditions must stop every rigid motion u = t + theta (-y, x); else the
         stiffness is singular.  Each held component at a point is one row [t_x, t_y, theta] of a
-        3-column system."""
+        3-column system.  A periodic scene is held by periodicity instead."""
+        if getattr(self, "periodic", False):
+            return self._check_periodic()
         rows = []
         for p in self.pinned:
             rows += [[1.0, 0.0, -p[1]], [0.0, 1.0, p[0]]]
@@ -232,3 +234,34 @@ class SceneChecks:
             f"stiffness): nothing stops it {' or '.join(motions)}; pin two points (scene.pinned) "
             "or hold a segment (scene.supports, or an actuated group)",
         )
+
+    def _check_periodic(self):
+        """A periodic scene: F_bar is its load and periodicity holds it, so no group, no support and
+        at most one pinned point (where the fluctuation is held at zero)."""
+        if self.groups:
+            self.fail("groups", "must be empty in a periodic scene (F_bar is its load)")
+        if self.supports:
+            self.fail("supports", "must be empty in a periodic scene (periodicity holds it)")
+        if len(self.pinned) > 1:
+            self.fail(
+                "pinned",
+                "must be at most one point in a periodic scene (where w = 0 removes translation)",
+                self.pinned,
+            )
+        # an empty cell facing an empty cell across a seam: one void split by the seam, whose walls
+        # neither contact nor the validity checks see across it
+        rows = self.rows()
+        seams = [
+            f"row {r + 1} from the top" for r, row in enumerate(rows) if row[0] + row[-1] == ".."
+        ]
+        seams += [
+            f"column {c + 1}" for c in range(len(rows[0])) if rows[0][c] + rows[-1][c] == ".."
+        ]
+        if seams:
+            self.fail(
+                "cells",
+                f"has empty cells '.' facing each other across a periodic seam ({seams[0]}): the "
+                "void straddles the seam, where contact and the validity checks cannot see its "
+                "walls; shift the grid so that the void lies inside the box",
+                self.cells,
+            )
