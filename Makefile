@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy study-min-feature repro-all repro-check verify settings-reference clean
+.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy repro-periodic-poisson repro-periodic-poisson-amortised study-min-feature repro-all repro-check verify settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -104,6 +104,12 @@ repro-dynamic-follow: ## in time: the pointer follows circles, joint design vs f
 
 repro-dynamic-energy: ## in time: an impulse's kinetic energy focused in a corner, joint vs frozen -> outputs/repro/dynamic_energy/
 	$(PYTHON) experiments/repro.py dynamic_energy --baseline-steps 60 $(REPRO_ARGS)
+
+repro-periodic-poisson: ## periodic: one 2 x 2 cell's pore radii trained to Poisson's ratio -0.5 at 10% compression vs circular holes -> results/periodic_poisson/
+	$(PYTHON) experiments/periodic_repro.py periodic_poisson $(REPRO_ARGS)
+
+repro-periodic-poisson-amortised: ## periodic: a network from the target Poisson's ratio to the pore, on held-out targets, vs circular holes -> results/periodic_poisson_amortised/
+	$(PYTHON) experiments/periodic_repro.py periodic_poisson_amortised $(REPRO_ARGS)
 
 study-min-feature:  ## translation and double rotation retrained with a 0.8 mm minimum feature at 2 mm per unit, vs unbounded -> results/*_min_feature/
 	$(PYTHON) experiments/min_feature.py translation

@@ -36,6 +36,8 @@ ROWS = [  # (results/<name>, the README's label)
     ("digital_mnist", "digital MNIST"),
     ("dynamic_follow", "in time: a circle followed"),
     ("dynamic_energy", "in time: an impulse focused"),
+    ("periodic_poisson", "periodic: Poisson's ratio -0.5"),
+    ("periodic_poisson_amortised", "periodic: Poisson's ratio, held out"),
 ]
 
 
@@ -128,6 +130,7 @@ def _row(name: str, label: str) -> str:
         "shape_error": "shape error (mean pore radii)",
         "mean_path_error": "mean path error (cell = 5)",
         "region_energy_share": "kinetic energy in the target region",
+        "poisson_error": "abs(Poisson's ratio - target) at 10% compression",
     }.get(r["metric"], r["metric"])
     return (
         f"| {label} | {metric} | {value(r['joint'])}{again} | {value(r['baseline'])} | {minutes} |"

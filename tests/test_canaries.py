@@ -39,6 +39,8 @@ REPRODUCTIONS = {
         "mnist_lookup",
         "dynamic_follow",
         "dynamic_energy",
+        "periodic_poisson",
+        "periodic_poisson_amortised",
     )
 }
 TASKS = {

@@ -43,7 +43,7 @@ BAD_RUN = [
     (
         "task=juggling",
         "task=juggling is unknown; choose one of ['digital_mnist', 'energy_focus', 'follow_path', "
-        "'rotation_double',",
+        "'periodic_poisson', 'periodic_poisson_amortised', 'rotation_double',",
     ),
     (
         "solver=dense solver.warm_start=true",

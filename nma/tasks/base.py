@@ -105,6 +105,11 @@ class Task:
         X, d and mat."""
         return sim.equilibrium_batch(X, d, mat)
 
+    def simulator(self, sim):
+        """The simulator the trainer works on: by default the run's scene's; a task that builds
+        its own model (a periodic cell: nma.tasks.periodic) returns that."""
+        return sim
+
     def n_outputs(self, sim) -> int:
         """The network's outputs: by default one actuation per actuated group."""
         return sim.n_actuations
@@ -136,6 +141,9 @@ class Task:
     # True: the loss compares actuations with actuation_targets(t); nothing is solved
     supervised = False
     frozen_geometry: tuple[str, ...] = ()  # geometry groups this task never learns
+    # True: its states come from a solver outside JAX (a periodic load path, nma.periodic), with no
+    # derivative in u: trainer.inversion_penalty does not act (each state is checked instead)
+    solved_outside = False
 
     def hidden(self, configured: list[int]) -> list[int]:
         """The encoder's hidden widths for this task."""

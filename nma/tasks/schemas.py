@@ -15,6 +15,7 @@ from ..errors import ConfigError
 from ..registry import TASKS
 from ..settings import bounded, choice
 from .spec_schema import GOALS as GOALS, SpecTask
+from .periodic_schema import PeriodicPoissonTask
 from .task_config import TaskConfig
 
 
@@ -269,6 +270,12 @@ TASKS.declare("rotation_double", "nma.tasks.rotation:rotation_double", RotationT
 TASKS.declare("shape_matching", "nma.tasks.shape_matching:shape_matching", ShapeMatchingTask)
 TASKS.declare("digital_mnist", "nma.tasks.digital_mnist:digital_mnist", DigitalMNISTTask)
 TASKS.declare("spec", "nma.tasks.spec:spec", SpecTask)
+TASKS.declare("periodic_poisson", "nma.tasks.periodic:periodic_poisson", PeriodicPoissonTask)
+TASKS.declare(
+    "periodic_poisson_amortised",
+    "nma.tasks.periodic:periodic_poisson_amortised",
+    PeriodicPoissonTask,
+)
 TASK_SCHEMAS: dict[str, type] = TASKS.schemas
 
 

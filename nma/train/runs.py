@@ -7,10 +7,12 @@ nma.export) call these."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from ..schema import TrainConfig, build
 
@@ -37,13 +39,9 @@ def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, 
     "geom"}) and that checkpoint's path: where exporting or re-evaluating a trained design starts.
     `material`: the material settings to solve with in place of the run's (the part as it is
     made)."""
-    import json
-    from collections.abc import Mapping
-
-    from omegaconf import OmegaConf
-
     from ..errors import ConfigError
     from ..schema import task_schema
+    from ..schema.periodic import PeriodicSceneConfig
     from . import checkpoint
 
     run = Path(run_dir)
@@ -94,9 +92,10 @@ def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, 
     path, raw = found
     if material is not None:  # the settings the run left to auto are chosen again, by this material
         cfg.material = material
-    settings = validate(
-        OmegaConf.merge({"task": OmegaConf.structured(schema)}, cfg), chosen_fidelity(raw)
-    )
+    # a periodic scene's own settings (porosity) are its schema's
+    scene = {"scene": PeriodicSceneConfig} if (cfg.get("scene") or {}).get("periodic") else {}
+    nodes = {k: OmegaConf.structured(v) for k, v in {"task": schema, **scene}.items()}
+    settings = validate(OmegaConf.merge(nodes, cfg), chosen_fidelity(raw))
     # what the design is and what it is asked: the run's files must still say what its checkpoint
     # trained a material given is not the run's
     groups = [g for g in DESIGN_GROUPS if material is None or g != "material"]
@@ -323,8 +322,6 @@ def _nest(flat: dict) -> dict:
 
 
 def _sha256(path: Path) -> str | None:
-    import hashlib
-
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
     except OSError:
@@ -354,14 +351,14 @@ def make_trainer(
     """The simulator, task, network, logger and trainer of checked, resolved settings (JAX set up
     first); with `exact_init` every parameter restored from trainer.init_from must fit
     (re-evaluating a run)."""
-    from ..runtime import configure_jax
+    from ..runtime import available_cores, configure_jax
 
     configure_jax()
     from ..geometry.features import Ligaments
     from ..registry import MODELS, TASKS
     from ..resolve import material_params
+    from ..periodic.front import cell_of
     from ..simulator import Simulator
-    from ..runtime import available_cores
     from .logger import make_logger
     from .mpi import World
     from .trainer import Trainer
@@ -369,8 +366,10 @@ def make_trainer(
     world = world or World()
     # solver.workers 0: this machine's cores, shared among the MPI ranks running on it
     workers = s.solver.workers or max(1, available_cores() // world.local_size)
-    sim = Simulator.from_settings(s, workers)
+    periodic = getattr(s.task, "periodic", False)  # a periodic task: its scene's cell
+    sim = cell_of(s) if periodic else Simulator.from_settings(s, workers)
     task = TASKS.get(s.task.factory)(s.task, sim)
+    sim = task.simulator(sim)
     hidden = task.hidden(s.task.hidden if s.model.hidden is None else s.model.hidden)
     if task.in_time:  # its trajectories: the run's dynamics, the material's density
         task.attach(sim, s.dynamics, s.material.density)

@@ -126,7 +126,7 @@ class Trainer(TrainerEvaluation, TrainerCheckpoints):
         ok = info.status == Status.CONVERGED
         losses = jax.vmap(self.task.loss)(out, ts)
         # steer away from states that invert between Gauss points
-        if self.cfg.inversion_penalty > 0:
+        if self.cfg.inversion_penalty > 0 and not self.task.solved_outside:
             margin = self.cfg.inversion_margin
             one = lambda ui: inversion_penalty(self.sim.disc.mesh, X, ui, margin)
             # a trajectory's: summed over its states

@@ -1,0 +1,87 @@
+"""Tasks on a periodic cell's effective response and the cell made as a part: the response's
+gradient against central differences, the tiling's outline against the cell's repeated, the part's
+report in millimetres (nma.periodic.response, nma.periodic.fabricate, nma.tasks.periodic)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nma import config
+from nma.errors import ConfigError
+from nma.periodic import circular_holes, periodic_cell, square_array, uniaxial
+from nma.periodic.fabricate import export_tiling, tiled_outline
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return periodic_cell(square_array(2, 2), fidelity={"quad_points": 3})
+
+
+@pytest.fixture(scope="module")
+def holes(cell):
+    """Circular holes at porosity 0.5, each of the four pores scaled differently (no symmetry
+    makes two of them alike)."""
+    params, _ = circular_holes(cell, 0.5)
+    return {"radii": params["radii"] * jnp.array([[1.0], [0.95], [0.9], [1.05]])}
+
+
+def _pores(outline):
+    """Each pore's control polygon, as a sorted array of rounded points (order-free)."""
+    return [np.unique(np.round(p.reshape(-1, 2), 9), axis=0) for p in outline.pores]
+
+
+def test_tiling_outline_is_the_cells_repeated(cell, holes):
+    # the tiling's pores are built by the same nets: each is a pore of the cell shifted by a whole
+    # number of periods (exact), and the material is the cell's n x m times
+    cell_outline, tiled = tiled_outline(cell, holes, 1, 1), tiled_outline(cell, holes, 3, 2)
+    Lx, Ly = cell.period
+    assert tiled.bounds == pytest.approx((0.0, 0.0, 3 * Lx, 2 * Ly), abs=1e-12)
+    assert tiled.area == pytest.approx(6 * cell_outline.area, rel=1e-12)
+    own = _pores(cell_outline)
+    assert len(tiled.pores) == 6 * len(own)
+    for pore in _pores(tiled):
+        shift = np.floor(pore.mean(axis=0) / [Lx, Ly]) * [Lx, Ly]
+        back = np.unique(np.round(pore - shift, 9), axis=0)
+        assert any(o.shape == back.shape and np.allclose(o, back, atol=1e-9) for o in own)
+
+
+def test_export_tiling_reports_the_part_in_mm(cell, holes, tmp_path):
+    ecoflex = config.load("material", "ecoflex_0030")
+    one = export_tiling(cell, holes, 2, 2, tmp_path / "a.dxf", scale=1.0, material=ecoflex)
+    ten = export_tiling(cell, holes, 2, 2, tmp_path / "b.svg", scale=10.0, material=ecoflex)
+    assert (tmp_path / "a.dxf").stat().st_size > 0 and (tmp_path / "a.dxf.json").is_file()
+    assert ten["min_ligament"] == pytest.approx(10.0 * one["min_ligament"], rel=1e-9)
+    # the outer sides halve the cell's edge ligaments: the material's own are wider
+    assert one["min_ligament"] < one["min_ligament_inside"]
+    assert ten["size"] == pytest.approx([40.0, 40.0])
+    assert ten["porosity"] == pytest.approx(one["porosity"], rel=1e-12)
+    assert one["material"]["unit"] == "MPa" and one["material"]["law"] == "ogden"
+    with pytest.raises(ConfigError, match="suffix"):
+        export_tiling(cell, holes, 2, 2, tmp_path / "c.step", material=ecoflex)
+    with pytest.raises(ConfigError, match="no real units"):
+        paper = config.load("material", "neo_hookean")
+        export_tiling(cell, holes, 2, 2, tmp_path / "d.dxf", material=paper)
+    with pytest.raises(ConfigError, match="n must be an integer"):
+        tiled_outline(cell, holes, 0, 1)
+
+
+def test_response_gradient_matches_central_differences(cell):
+    # past the bifurcation (about -6.5% for these holes), on the buckled branch; a symmetric
+    # change of the pores keeps the two mirror-image branches' responses equal
+    from nma.periodic.response import Response
+
+    params, _ = circular_holes(cell, 0.5)
+    response = Response(cell, uniaxial("y", -0.1), 5)
+    lateral = lambda r: response(cell.disc.reference_points({"radii": r})[None]).lateral[0]
+    value, grad = jax.value_and_grad(lateral)(params["radii"])
+    out = response(cell.disc.reference_points(params)[None])
+    assert int(out.status[0]) == 1 and bool(np.all(np.asarray(out.valid) == 1.0))
+    assert float(out.critical[0]) == pytest.approx(-0.065, abs=0.005)  # docs' -6.5%
+    assert float(-(value - 1.0) / -0.1) < 0.0  # auxetic after the bifurcation
+    dr = jnp.tile(jnp.array([0.3, 1.0, 0.3] * 4), (4, 1))
+    h = 1e-4
+    fd = (lateral(params["radii"] + h * dr) - lateral(params["radii"] - h * dr)) / (2 * h)
+    assert float(jnp.sum(grad * dr)) == pytest.approx(float(fd), rel=1e-5)
