@@ -40,6 +40,7 @@ from nma.schema import (
 )
 from nma.mechanics.laws import builtin, law_names, law_of
 from nma.schema.commands import FitConfig, OutputConfig
+from nma.schema.periodic import LoadConfig, PeriodicSceneConfig
 from nma.settings import Schema
 from nma.tasks.schemas import TASK_SCHEMAS
 
@@ -79,7 +80,9 @@ GROUPS = [  # (heading, prefix, schema): the training run's groups, then the oth
     ("Logger", "logger", LoggerConfig),
     ("Scene", "scene", SceneConfig),
     *[(f"Task {name}", "task", schema) for name, schema in sorted(TASK_SCHEMAS.items())],
+    ("Periodic scene: its own settings besides the scene's", "scene", PeriodicSceneConfig),
     ("nma.simulate: output", "output", OutputConfig),
+    ("nma.simulate: load, of a periodic scene", "load", LoadConfig),
     ("nma.export", "", ExportConfig),
     ("nma.evaluate", "", EvaluateConfig),
     ("nma.fit", "", FitConfig),
@@ -125,8 +128,12 @@ def default_of(f: dataclasses.Field):
 
 
 def rows(prefix: str, schema: type) -> list[str]:
+    """A row per field of `schema`; a subclass of another listed schema, its own fields only."""
     hints, notes, out, nested = typing.get_type_hints(schema), comments(schema), [], []
-    for f in dataclasses.fields(schema):
+    listed = {g[2] for g in GROUPS if g[2] is not schema}
+    base = next((b for b in schema.__mro__[1:] if b in listed), None)
+    known = {f.name for f in dataclasses.fields(base)} if base else set()
+    for f in (f for f in dataclasses.fields(schema) if f.name not in known):
         key = f"{prefix}.{f.name}" if prefix else f.name
         tp = hints.get(f.name)
         if isinstance(tp, type) and issubclass(tp, Schema):
