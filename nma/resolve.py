@@ -14,8 +14,8 @@ What auto decides, and by what:
   fidelity.inversion_barrier left null: by the material's compressibility (material_model: its nu
   against NEARLY_INCOMPRESSIBLE);
 - contact=auto: on for a nearly incompressible material, else as the scene says (its `contact`);
-- material.volumetric=auto: the form the scene states (its `volumetric`: the shipped scenes state
-  the paper's, bulk), else lame; a law without a volume term keeps auto (it has no such term).
+- material.volumetric=auto: the form the scene states (its `volumetric`: the paper's scenes and
+  strip state the paper's, bulk), else lame; a law without a volume term keeps auto (it has none).
 
 Beside a trained run (nma.evaluate) what is left to auto is taken as the run solved, and
 contact=auto follows the scene.  solver.linear=auto is the backend registry's choice
@@ -93,17 +93,11 @@ def resolve(
 
 
 def _check_lame(material) -> None:
-    """Refuses a `lame` volume term whose coefficient is not positive: where psi alone stiffens
-    volume change more than nu asks (a Mooney-Rivlin's 4 C01 above 2 mu0 nu / (1 - 2 nu)), the
-    energy would fall without bound as J -> 0."""
-    k = float(material_of(material).volume_modulus(material_params(material)))
-    if not k > 0:
-        raise ConfigError(
-            f"material.volumetric=lame gives law {material.law} the volume coefficient {k:.4g} "
-            f"at material.nu={material.nu}: it must be positive (psi's own share of the Lame "
-            "constant exceeds 2 mu0 nu / (1 - 2 nu)); raise material.nu or set "
-            "material.volumetric=bulk"
-        )
+    """Refuses a `lame` volume term whose coefficient is negative
+    (Material.unbounded_volume_term), naming the settings."""
+    problem = material_of(material).unbounded_volume_term(material_params(material), "material.")
+    if problem:
+        raise ConfigError(problem)
 
 
 def _filled(solver, choices: dict):

@@ -166,7 +166,7 @@ class Simulator:
             material: The material (`nma.schema.physics.MaterialConfig`'s fields, or a preset's
                 name, `"yeoh"` etc.); None: the paper's Neo-Hookean.  Its own formulation, where not
                 auto, replaces `formulation`; its volume term (`volumetric`) left auto is the
-                scene's (the shipped scenes': the paper's, bulk), else lame.
+                scene's (the paper's scenes and strip: bulk), else lame.
                 `sim.material_params` is its parameter array.
 
         Returns:

@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from nma.errors import ConfigError
 from nma.periodic import (
     MacroLoad,
+    biaxial,
     circular_holes,
     follow,
     periodic_cell,
@@ -131,6 +132,11 @@ def test_periodic_scene_with_supports_or_groups_is_refused():
         periodic_cell("translation")  # a finite scene, its sides pushed by actuated groups
     with pytest.raises(ConfigError, match="F12 and F21 cannot both be free"):
         MacroLoad("spin", np.array([1.0, 0.0, 0.0, 1.0]), (1, 2), 0)
+    # what a periodic path would ignore: a weight per cell, points to track
+    with pytest.raises(ConfigError, match="scene.gravity must be null in a periodic scene"):
+        periodic_cell({"name": "heavy", "cells": "PP", "gravity": [0.0, -1.0]})
+    with pytest.raises(ConfigError, match="scene.tracked must be empty in a periodic scene"):
+        periodic_cell({"name": "watched", "cells": "PP", "tracked": {"c": [5.0, 5.0]}})
 
 
 def test_circular_holes_reach_the_target_porosity(porous):
@@ -220,6 +226,10 @@ def test_simulate_follows_a_periodic_scene_and_writes_path_fields_figure(tmp_pat
             ["scene=square_array", "load=uniaxial_y", "dynamics=newmark"],
             "scene=square_array is periodic, and its load path is static",
         ),
+        (
+            ["scene=square_array", "load=uniaxial_y", "solver.rtol=1e-8"],
+            r"solver.rtol=1e-08: scene=square_array is periodic, .* takes no solver settings",
+        ),
     ],
 )
 def test_simulate_refuses_what_a_periodic_scene_cannot_take(overrides, message):
@@ -274,6 +284,12 @@ def test_bad_load_or_steps_are_refused_naming_the_field(solid):
         ConfigError, match=r"load.strain must be a nominal strain in \(-0.9, 10.0\)"
     ):
         uniaxial("x", -1.5)
+    with pytest.raises(ConfigError, match=r"load.strain must not be 0"):
+        uniaxial("y", 0.0)
+    with pytest.raises(ConfigError, match=r"load.strain must not be 0"):
+        shear(0.0)
+    with pytest.raises(ConfigError, match=r"load.lateral_strain must be a nominal strain"):
+        biaxial(0.1, -2.0)
     with pytest.raises(ValueError, match=r"params\['radii'\] must have shape \(0, 12\)"):
         follow(solid, uniaxial("x", -0.1), params={"radii": jnp.zeros((1, 12))})
 

@@ -236,6 +236,25 @@ def test_a_law_without_a_volume_term_refuses_a_volumetric_form():
     assert record["poisson"] == pytest.approx(0.3 / 0.7, rel=1e-12)  # linear elasticity's
 
 
+def test_a_lame_term_that_would_be_negative_is_refused_naming_nu():
+    """Mooney-Rivlin's psi gives the Lame constant 4 C01 of its own: at nu = 0.1 and C01 = C10 / 4
+    the lame coefficient 2 mu0 nu / (1 - 2 nu) - 4 C01 = 0.00675 - 0.0108 is negative, and the
+    energy would fall without bound as J -> 0; nu must be at least 4 C01 / (2 (mu0 + 4 C01)) =
+    0.0108 / 0.0756 = 0.1429.  A Neo-Hookean's lame coefficient is negative with nu (0 at nu = 0,
+    where -mu log J still bounds the energy).  bulk keeps kappa > 0.  The config and the library
+    (Material.check, before a solve) refuse alike."""
+    material = {"law": "mooney_rivlin", "E": None, "nu": 0.1}
+    material["parameters"] = {"C10": 0.0108, "C01": 0.0027}
+    with pytest.raises(ConfigError, match=r"material.nu must be at least 0.1429 for lame"):
+        library_settings(BLOCK, material={**material, "volumetric": "lame"})
+    assert library_settings(BLOCK, material={**material, "volumetric": "bulk"}).material.nu == 0.1
+    nh = Material(law=law_of("neo_hookean"), volumetric="lame")
+    with pytest.raises(ValueError, match=r"negative Poisson's ratio .* nu must be at least 0 "):
+        nh.check(np.array([E, -0.3]))
+    nh.check(np.array([E, 0.0]))
+    Material(law=law_of("neo_hookean"), volumetric="bulk").check(np.array([E, -0.3]))
+
+
 def test_plane_strain_record_states_the_form_and_its_moduli():
     """nma.simulate's `plane_strain`: at nu = 0.3 the paper's form is 1.064 times E / (1 - nu^2)
     with 0.52 across, lame exactly E / (1 - nu^2) and 0.4286."""
@@ -250,8 +269,8 @@ def test_plane_strain_record_states_the_form_and_its_moduli():
 
 
 def test_checkpoints_from_before_the_setting_read_as_the_papers_form():
-    """A checkpoint's record without material.volumetric means bulk (ABSENT_MEANS), the form every
-    run before the setting solved with: a paper scene's run continues it, a lame run refuses it."""
+    """A checkpoint's record without material.volumetric means bulk (ABSENT_MEANS), the form such a
+    record was solved with: a paper scene's run continues it, a lame run refuses it."""
     import json
 
     from conftest import compose_cfg
@@ -270,8 +289,8 @@ def test_checkpoints_from_before_the_setting_read_as_the_papers_form():
 
 
 def test_a_saved_run_without_the_setting_is_re_read_in_the_papers_form(translation_run, tmp_path):
-    """A run's .hydra/config.yaml from before material.volumetric and scene.volumetric existed
-    lacks both: nma.evaluate and nma.export (load_run) solve it with bulk, the form it trained
+    """A run's .hydra/config.yaml without material.volumetric and scene.volumetric (a run saved
+    with neither): nma.evaluate and nma.export (load_run) solve it with bulk, the form it trained
     with, not with the default a scene without a statement gets."""
     from omegaconf import OmegaConf
 

@@ -84,7 +84,7 @@ def compress(nu: float, stretches=STRETCHES, ctrl: int = CTRL) -> list[dict]:
     from nma.mechanics.material import Material
     from nma.simulator import Simulator
 
-    material = Material("mixed", law_of("mooney_rivlin"))  # volume term kappa/2 (log J)^2
+    material = Material("mixed", law_of("mooney_rivlin"), "bulk")  # volume term kappa/2 (log J)^2
     params = jnp.array([C10, C01, nu])
     mu, kappa = (float(m) for m in material.moduli(params))
     out = []

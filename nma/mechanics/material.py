@@ -103,6 +103,34 @@ class Material:
                     f"{where}: mat = [{', '.join(names)}] must have {name} in "
                     f"{spec.range}, got {float(number):g}"
                 )
+        problem = self.unbounded_volume_term(params)
+        if problem:
+            raise ValueError(f"{where}: mat = [{', '.join(names)}]: {problem}")
+
+    def unbounded_volume_term(self, params, prefix: str = "") -> str | None:
+        """Why the `lame` volume coefficient k of concrete `params` is negative, or None (k >= 0,
+        `bulk`, or no volume term); the settings named with `prefix` ("material.").  With k < 0
+        the energy -c0 log J + k/2 (log J)^2 falls without bound as J -> 0 (collapsed states
+        would be minima); kappa > 0 for every admissible nu."""
+        if self.volumetric != "lame" or not self.law.volume_term:
+            return None
+        q = self.named(jnp.asarray(params, dtype=jnp.float64))
+        mu0 = self.law.shear_modulus(q)
+        k = float(self.law.lame_modulus(q, mu0))
+        if k >= 0:
+            return None
+        own, nu = float(self.law.psi_lambda(q)), float(q["nu"])
+        lowest = own / (2.0 * (float(mu0) + own))  # where 2 mu0 nu / (1 - 2 nu) = own
+        cause = (
+            f"psi's own share of the Lame constant, {own:.4g}, exceeds 2 mu0 nu / (1 - 2 nu)"
+            if own > 0
+            else "a negative Poisson's ratio gives a negative Lame constant"
+        )
+        return (
+            f"{prefix}volumetric=lame gives law {self.law.name} the volume coefficient {k:.4g} < 0 "
+            f"at {prefix}nu = {nu:g} ({cause}), and the energy would fall without bound as J -> 0: "
+            f"{prefix}nu must be at least {lowest:.4g} for lame, or set {prefix}volumetric=bulk"
+        )
 
     def moduli(self, params: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
         """The initial shear and the bulk modulus (mu, kappa) of the parameters: kappa is the

@@ -63,9 +63,18 @@ class MacroLoad:
 
 
 def _strain(where: str, value: float, lo: float = -0.9, hi: float = 10.0) -> float:
+    """A path's end: finite, in (lo, hi) (the config's range, LoadConfig), and not 0 where it is
+    the load's axis (a path of no strain has no Poisson's ratio)."""
     value = float(value)
     if not (np.isfinite(value) and lo < value < hi):
         raise ConfigError(f"{where} must be a nominal strain in ({lo}, {hi}), got {value}")
+    return value
+
+
+def _axial(where: str, value: float) -> float:
+    value = _strain(where, value)
+    if value == 0.0:
+        raise ConfigError(f"{where} must not be 0: the path would not move")
     return value
 
 
@@ -74,7 +83,7 @@ def uniaxial(axis: str, strain: float) -> MacroLoad:
     stretch free (zero average lateral stress), the shear components held at 0 (no rotation)."""
     if axis not in ("x", "y"):
         raise ConfigError(f"load.axis must be one of ['x', 'y'], got {axis!r}")
-    e = _strain("load.strain", strain)
+    e = _axial("load.strain", strain)
     a, b = (0, 3) if axis == "x" else (3, 0)
     target = IDENTITY.copy()
     target[a] = 1.0 + e
@@ -83,14 +92,16 @@ def uniaxial(axis: str, strain: float) -> MacroLoad:
 
 def biaxial(strain_x: float, strain_y: float) -> MacroLoad:
     """Both normal stretches prescribed, F = diag(1 + strain_x, 1 + strain_y)."""
-    ex, ey = _strain("load.strain_x", strain_x), _strain("load.strain_y", strain_y)
+    ex, ey = _strain("load.strain", strain_x), _strain("load.lateral_strain", strain_y)
+    if ex == ey == 0.0:
+        raise ConfigError("load.strain and load.lateral_strain must not both be 0: no path")
     return MacroLoad("biaxial", np.array([1.0 + ex, 0.0, 0.0, 1.0 + ey]), (), 0, None)
 
 
 def shear(gamma: float, free_normal: bool = False) -> MacroLoad:
     """Simple shear F12 = gamma (F21 = 0); the normal stretches held at 1, or with `free_normal`
     free (zero average normal stresses)."""
-    g = _strain("load.gamma", gamma, -10.0, 10.0)
+    g = _axial("load.strain", gamma)
     return MacroLoad("shear", np.array([1.0, g, 0.0, 1.0]), (0, 3) if free_normal else (), 1, None)
 
 

@@ -124,6 +124,13 @@ def follow(
                             p, z, load.at(t), modes[:, 0], vals[0], k_ref, tol, s, (K, K_full)
                         )
                         lowest = float(p.lowest_modes(K)[0][0]) / k_ref
+                        if lowest < -NEGATIVE:  # still a saddle: not a state the cell stays in
+                            message = (
+                                f"the path could not leave the saddle at t = {t:.4g} along its "
+                                f"unstable mode (lowest eigenvalue {lowest:.3g} of the stiffness "
+                                "scale after the escape): the buckled branch was not reached"
+                            )
+                            break
                 lowest_prev, t_prev_conv = lowest, t
         if message:
             break

@@ -155,6 +155,20 @@ class SimulateConfig:
                 f"dynamics.scheme={self.dynamics.scheme}: scene={name} is periodic, and its load "
                 "path is static (a sequence of equilibria); leave dynamics off"
             )
+        from .material_model import material_model
+
+        # the settings' defaults, and what solver=auto fills in for this material
+        default = {**vars(SolverConfig()), **material_model(self.material.nu).solver}
+        given = [
+            f"solver.{f}={getattr(self.solver, f)}"
+            for f in self.solver.__dataclass_fields__
+            if getattr(self.solver, f) not in (getattr(SolverConfig(), f), default.get(f))
+        ]
+        if given:
+            raise ConfigError(
+                f"{', '.join(given)}: scene={name} is periodic, and its load path is solved by "
+                "nma.periodic's own Newton, which takes no solver settings; leave them out"
+            )
 
 
 @dataclass

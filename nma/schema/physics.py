@@ -98,7 +98,7 @@ class MaterialConfig(Schema):
         "makes nu the 3D Poisson's ratio (plane strain then has E / (1 - nu^2) and nu / (1 - nu) "
         "under uniaxial stress); bulk, the bulk modulus E / (3 (1 - 2 nu)), the paper's form "
         "(1.064 E / (1 - nu^2) and 0.52 at nu = 0.3); auto: the scene's (scene.volumetric; the "
-        "shipped scenes state bulk), else lame; a law without a volume term "
+        "paper's scenes and strip state bulk), else lame; a law without a volume term "
         "(st_venant_kirchhoff): auto only",
     )
 

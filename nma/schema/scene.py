@@ -159,7 +159,7 @@ class SceneConfig(Schema, SceneChecks):
         None,
         (None, *VOLUMETRIC),
         doc="the material's volume term where material.volumetric is auto: the form the scene's "
-        "results are stated in (the shipped scenes state bulk, the paper's); null: lame",
+        "results are stated in (the paper's scenes and strip state bulk, the paper's); null: lame",
     )
 
     def body_force(self, density: float):

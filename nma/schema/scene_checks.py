@@ -242,6 +242,19 @@ class SceneChecks:
             self.fail("groups", "must be empty in a periodic scene (F_bar is its load)")
         if self.supports:
             self.fail("supports", "must be empty in a periodic scene (periodicity holds it)")
+        if self.gravity is not None and any(self.gravity):
+            self.fail(
+                "gravity",
+                "must be null in a periodic scene: a weight per cell is not a macroscopic load "
+                "that periodicity can carry",
+                self.gravity,
+            )
+        if self.tracked:
+            self.fail(
+                "tracked",
+                "must be empty in a periodic scene: its path reports averages, not points",
+                self.tracked,
+            )
         if len(self.pinned) > 1:
             self.fail(
                 "pinned",

@@ -78,7 +78,7 @@ def load_run(run_dir, material: dict | None = None) -> tuple[TrainConfig, dict, 
     # found them
     if "element_bound" not in cfg.get("solver", {}):
         cfg.solver = {**(cfg.get("solver") or {}), "element_bound": False}
-    # a run trained before material.volumetric existed solved with the paper's volume term
+    # a saved config without material.volumetric solved with the paper's volume term
     m = cfg.get("material") or {}
     if "volumetric" not in m and law_of(m.get("law", "neo_hookean")).volume_term:
         cfg.material = {**m, "volumetric": "bulk"}
