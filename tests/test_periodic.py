@@ -42,7 +42,7 @@ def porous():
 
 def _plane_tangent(cell):
     """The law's own plane-strain tangent at rest, C_ijkl = dP_ij/dF_kl at F = I (as
-    experiments/verify.py's plane_moduli)."""
+    Material.plane_moduli reads it)."""
     return np.asarray(cell.disc.material.point_terms(cell.material_params)[2](jnp.eye(2)))
 
 
@@ -140,7 +140,11 @@ def test_periodic_scene_with_supports_or_groups_is_refused():
 
 
 def test_circular_holes_reach_the_target_porosity(porous):
+    """0.5 is reached; 0.74, beyond the largest circles the radii bounds allow (0.659 on the
+    square array's cell), is refused rather than approximated."""
     assert porous[2] == pytest.approx(0.5, abs=1e-6)
+    with pytest.raises(ConfigError, match=r"porosity 0.74 is out of reach .* to 0.659"):
+        circular_holes(porous[0], 0.74)
 
 
 @pytest.fixture(scope="module")

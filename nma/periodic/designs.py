@@ -59,12 +59,14 @@ def porosity(cell: PeriodicCell, params) -> float:
 
 
 def circular_holes(cell: PeriodicCell, target: float = 0.5, iters: int = 30) -> tuple[dict, float]:
-    """The circle_params design whose porosity is `target` (or the nearest the radii bounds
-    allow), by bisection on the radius; returns (params, its porosity)."""
+    """The circle_params design whose porosity is `target`, by bisection on the radius; returns
+    (params, its porosity).  A target the scene's radii bounds cannot reach is refused, naming the
+    porosities they allow."""
     if not 0.0 < target < 0.75:
         raise ConfigError(f"circular_holes: target porosity must be in (0, 0.75), got {target}")
     lo_b, hi_b = cell.disc.spec.radii_bounds
-    lo, hi = lo_b * _SIDE.max() / 2.0, hi_b * _SIDE.min() / 2.0
+    smallest, largest = lo_b * _SIDE.max() / 2.0, hi_b * _SIDE.min() / 2.0
+    lo, hi = smallest, largest
     for _ in range(iters):
         mid = 0.5 * (lo + hi)
         if porosity(cell, circle_params(cell, mid)) < target:
@@ -72,4 +74,12 @@ def circular_holes(cell: PeriodicCell, target: float = 0.5, iters: int = 30) -> 
         else:
             hi = mid
     params = circle_params(cell, 0.5 * (lo + hi))
-    return params, porosity(cell, params)
+    reached = porosity(cell, params)
+    if abs(reached - target) > 1e-4:
+        ends = [porosity(cell, circle_params(cell, r)) for r in (smallest, largest)]
+        raise ConfigError(
+            f"porosity {target:g} is out of reach of scene {cell.disc.spec.name}'s radii bounds "
+            f"{[lo_b, hi_b]}: its circular holes have porosities from {min(ends):.4g} to "
+            f"{max(ends):.4g}"
+        )
+    return params, reached
