@@ -190,7 +190,10 @@ class PeriodicProblem:
         scaled to length units (D K D, D = diag(1, .., 1 / L)): the eigenvalue's sign is K's
         (Sylvester's law of inertia).  By shift-invert Lanczos about sigma = -SHIFT x the largest
         diagonal entry: the eigenvalue nearest sigma is the lowest wherever the lowest is above
-        sigma, and negative wherever it is not; dense below DENSE_BELOW unknowns."""
+        sigma, and negative wherever it lies between 2 sigma and sigma; one further below could
+        be passed over for a positive neighbour nearer sigma, which a path's steps, each starting
+        where the lowest was positive, would have to jump across in one step.  Dense below
+        DENSE_BELOW unknowns."""
         d = np.ones(self.nz)
         d[self.nw :] = 1.0 / self.length
         Ks = sp.diags(d) @ K @ sp.diags(d)
