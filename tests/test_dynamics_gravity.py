@@ -226,7 +226,12 @@ def test_nma_simulate_steps_a_scene_under_gravity_from_either_start(tmp_path, st
     assert out["dynamics"]["start"] == start
     with h5py.File(out["dynamics"]["trajectory"]) as f:
         u0 = np.asarray(f["u"][0])
+        # the weight's potential -f . u beside the kinetic and strain energies: 0 at rest, and
+        # falling as the strip sags
+        potential = np.asarray(f["load_potential"][()])
+    assert len(potential) == 5 and potential[-1] < 0
     if start == "rest":
+        assert potential[0] == 0.0
         assert not np.any(u0)
         return
     sim = Simulator.from_settings(s)

@@ -112,6 +112,14 @@ def over_time(s, sim, X, d, mat, u_static, out_dir: Path, modes: dict) -> dict:
     kinetic = np.asarray(kinetic_energy(eqs, Xj, v[:reached], density)).tolist()
     quad = quadrature(eqs.solid, Xj)
     strain = [float(strain_energy(eqs.solid, quad, jnp.asarray(ui), mat)) for ui in u[:reached]]
+    # a dead load's potential -f . u (the weight's, a traction's), so that kinetic + strain + it is
+    # the energy an undamped run conserves where the actuation holds still
+    dead = np.asarray(eqs.external_force(quad))
+    load = (
+        {"load_potential": [float(-dead @ np.asarray(ui).reshape(-1)) for ui in u[:reached]]}
+        if np.any(dead)
+        else {}
+    )
     tracked = {
         k: np.stack([np.asarray(sim.tracked(X, jnp.asarray(ui))[k]) for ui in u[:reached]])
         for k in sim.tracked(X, jnp.asarray(u[0]))
@@ -136,6 +144,7 @@ def over_time(s, sim, X, d, mat, u_static, out_dir: Path, modes: dict) -> dict:
         {
             "kinetic_energy": kinetic,
             "strain_energy": strain,
+            **load,
             **{f"tracked/{k}": p for k, p in tracked.items()},
         },
     )
