@@ -77,8 +77,15 @@ METRICS: dict[str, list[Metric]] = {
         Metric("joint", "higher", 1.0, "1 point of the share: reruns on other CPUs"),
         Metric("reevaluated.value", "higher", 1.0, "as the metric it re-solves"),
     ],
-    "periodic_poisson": [Metric("joint", "lower", 0.01, _POISSON)],
-    "periodic_poisson_amortised": [Metric("joint", "lower", 0.02, _POISSON)],
+    # the headline: the designs re-solved at 14 x 5 (experiments/periodic_repro.py)
+    "periodic_poisson": [
+        Metric("joint", "lower", 0.01, _POISSON),
+        Metric("reevaluated.value", "lower", 0.01, _POISSON),
+    ],
+    "periodic_poisson_amortised": [
+        Metric("joint", "lower", 0.02, _POISSON),
+        Metric("reevaluated.value", "lower", 0.02, _POISSON),
+    ],
 }
 
 

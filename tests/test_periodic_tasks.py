@@ -17,7 +17,8 @@ from nma.periodic.fabricate import export_tiling, tiled_outline
 
 @pytest.fixture(scope="module")
 def cell():
-    return periodic_cell(square_array(2, 2), fidelity={"quad_points": 3})
+    # scene.porosity: the tasks' initial circles
+    return periodic_cell({**square_array(2, 2), "porosity": 0.5}, fidelity={"quad_points": 3})
 
 
 @pytest.fixture(scope="module")
@@ -85,3 +86,34 @@ def test_response_gradient_matches_central_differences(cell):
     h = 1e-4
     fd = (lateral(params["radii"] + h * dr) - lateral(params["radii"] - h * dr)) / (2 * h)
     assert float(jnp.sum(grad * dr)) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_refined_resolve_maps_the_same_design_and_scores_it(cell, holes):
+    # a design's parameters at 8 x 4 give the same geometry (knot insertion is exact: Boehm 1980),
+    # so the same porosity and pores; its path is then followed and scored there
+    from nma.periodic.designs import porosity
+    from nma.tasks.periodic import periodic_poisson
+    from nma.tasks.periodic_schema import PeriodicPoissonTask
+
+    scene = {**square_array(2, 2), "porosity": 0.5}
+    fine = periodic_cell(scene, fidelity={"ctrl_per_patch": 8, "quad_points": 4})
+    patches = np.repeat(np.arange(cell.disc.mesh.n_patches), 25)
+    grid = np.stack(np.meshgrid(*[np.linspace(0.0, 1.0, 5)] * 2), -1).reshape(-1, 2)
+    xi = np.tile(grid, (cell.disc.mesh.n_patches, 1))
+
+    def at(c):  # material points on every patch, pores' edges included
+        idx, w = c.disc.mesh.material_points(patches, xi)
+        return np.einsum("nk,nkd->nd", w, np.asarray(c.disc.reference_points(holes))[idx])
+
+    assert np.max(np.abs(at(fine) - at(cell))) < 1e-12
+    task = periodic_poisson(PeriodicPoissonTask(steps=5), cell)
+    r = task.refined(fine, np.asarray(holes["radii"])[None])
+    assert r["porosity"][0] == pytest.approx(porosity(cell, holes), abs=1e-12)
+    assert r["fidelity"]["ctrl_per_patch"] == 8 and r["fidelity"]["quad_points"] == 4
+    assert r["failed_solves"] == 0 and r["invalid_states"] == 0 and r["checked_states"] == 5
+    assert r["value"] == pytest.approx(abs(r["reached"][0] - task.cfg.target), rel=1e-12)
+    # the circles at 8 control points: -0.21 at -10%, bifurcating at -6.4%
+    # (docs/how-to/periodic-metamaterials.md); -0.149 at the training fidelity
+    assert r["baseline_poisson"] == pytest.approx(-0.21, abs=0.005)
+    assert r["baseline_critical_strain"] == pytest.approx(-0.064, abs=0.001)
+    assert task.baseline_poisson == pytest.approx(-0.149, abs=0.002)

@@ -80,6 +80,8 @@ class PeriodicCell:
         rep: (n_points,) the reduced point each control point is tied to.
         pin: the reduced point whose w is held at zero.
         w_dofs: (nw,) flat dofs (2 * reduced point + component) of the free fluctuation.
+        porosity: the scene's pores as circles of this porosity (scene.porosity); None: the
+            design its radii_init gives.
     """
 
     disc: Discretisation
@@ -89,14 +91,15 @@ class PeriodicCell:
     pin: int
     w_dofs: np.ndarray
     tol: float
+    porosity: float | None = None
     # the periodic problems' compiled functions (nma.periodic.problem), by load kind
     compiled: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, disc: Discretisation, mat) -> "PeriodicCell":
+    def of(cls, disc: Discretisation, mat, porosity: float | None = None) -> "PeriodicCell":
         """The periodic cell of a discretised grid scene (nma.discretise, no boundary conditions
-        needed) with material parameters `mat`; nma.periodic.periodic_cell builds one from
-        settings."""
+        needed) with material parameters `mat` and the scene's `porosity` (its initial circles);
+        nma.periodic.periodic_cell builds one from settings."""
         spec = disc.spec
         box = np.array(
             [[spec.x_breaks[0], spec.y_breaks[0]], [spec.x_breaks[-1], spec.y_breaks[-1]]], float
@@ -116,7 +119,7 @@ class PeriodicCell:
             )
         pin = int(rep[pin_point])
         w_dofs = np.setdiff1d(np.arange(2 * len(reps)), [2 * pin, 2 * pin + 1])
-        return cls(disc, mat, box, rep, pin, w_dofs, tol)
+        return cls(disc, mat, box, rep, pin, w_dofs, tol, porosity)
 
     @property
     def n_reduced_points(self) -> int:

@@ -54,7 +54,7 @@ def run(s, out_dir: Path) -> dict:
     load_cfg = s.load
     t0 = time.perf_counter()
     cell = cell_of(s)
-    params, porosity = None, getattr(s.scene, "porosity", None)  # a PeriodicSceneConfig's
+    params, porosity = None, cell.porosity  # the scene's
     if porosity is not None:
         params, porosity = circular_holes(cell, porosity)
     load = load_of(load_cfg.kind, load_cfg.strain, load_cfg.lateral_strain)

@@ -56,4 +56,4 @@ def cell_of(s) -> PeriodicCell:
     disc = discretise(
         s.scene.spec(), s.fidelity, contact_options(s.contact), material_of(s.material)
     )
-    return PeriodicCell.of(disc, material_params(s.material))
+    return PeriodicCell.of(disc, material_params(s.material), getattr(s.scene, "porosity", None))

@@ -8,7 +8,8 @@ task.strain, through its bifurcation onto the buckled branch, brought to a targe
   pore in every cell (a side's corner and middle radii: 2 numbers, d_max from the initial circles);
   trained over task.train_targets, evaluated on the midpoints between them (held out).
 
-Both start from circular holes of task.porosity (the baseline).  Every state of every path is
+Both start from the scene's initial design (the baseline): circular holes of scene.porosity, or
+its radii_init where that is null.  Every state of every path is
 checked physical (nma.geometry.validity); a path that could not be completed scores as the
 baseline does (never better).  The trainer works on the cell's own simulator (Task.simulator).
 """
@@ -22,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ConfigError
-from ..solver.status import NewtonInfo
+from ..solver.status import NewtonInfo, Status
 from .base import Task
 from .periodic_schema import PeriodicPoissonTask
 
@@ -68,14 +69,18 @@ class PeriodicPoisson(Task):
     solved_outside = True
 
     def __init__(self, cfg: PeriodicPoissonTask, cell, amortised: bool):
-        from ..periodic.designs import circular_holes
+        from ..periodic.designs import circular_holes, porosity
         from ..periodic.load import uniaxial
         from ..periodic.response import Response
 
         self.name, self.cfg, self.amortised = cfg.name, cfg, amortised
         self.d_max = cfg.d_max
         self.cell = cell
-        self.params0, self.porosity0 = circular_holes(cell, cfg.porosity)
+        if cell.porosity is None:
+            self.params0 = cell.disc.init_params()
+            self.porosity0 = porosity(cell, self.params0)
+        else:
+            self.params0, self.porosity0 = circular_holes(cell, cell.porosity)
         self.sim = CellSimulator(cell, self.params0)
         self.X0 = self.sim.reference_points(self.params0)
         self.response = Response(self.cell, uniaxial(cfg.axis, cfg.strain), cfg.steps)
@@ -112,12 +117,63 @@ class PeriodicPoisson(Task):
         n = d.shape[0]
         if not self.amortised:
             return jnp.broadcast_to(X, (n,) + X.shape)
+        radii = self.design_radii(d)
+        return jax.vmap(lambda r: self.sim.disc.reference_points({"radii": r}))(radii)
+
+    def design_radii(self, d):
+        """(n, pores, radii per pore) the network's pores (amortised): the initial circles' radii
+        moved by d, clipped to the scene's bounds; a design's parameters at any fidelity."""
         r0 = self.params0["radii"]
         move = jnp.stack([d[:, 0], d[:, 1], d[:, 0]], axis=-1)  # (n, 3): a side
         side = jnp.tile(move, (1, r0.shape[1] // 3))
         lo, hi = self.sim.disc.design.bounds()["radii"]
-        radii = jnp.clip(r0[None] + side[:, None, :], lo, hi)
-        return jax.vmap(lambda r: self.sim.disc.reference_points({"radii": r}))(radii)
+        return jnp.clip(r0[None] + side[:, None, :], lo, hi)
+
+    # -- a trained design at another fidelity ----------------------------------------------------
+    def refined(self, cell, radii) -> dict:
+        """The designs `radii` (n, pores, radii per pore: the trained geometry's, or design_radii's
+        for the evaluation targets) and the baseline re-solved on `cell`, the run's scene at another
+        fidelity: the same design parameters through the same B-spline nets (refined by knot
+        insertion: the same pores to round-off), each path followed as the evaluation follows it
+        (task.steps output points, every state checked physical).  A failed path scores as the
+        baseline at that fidelity does (at the training fidelity where that fails too)."""
+        from ..periodic.designs import porosity
+        from ..periodic.response import Response
+
+        ts = np.asarray(self._eval)[:, 0]
+        if len(radii) != len(ts):
+            raise ValueError(f"{len(radii)} designs for {len(ts)} evaluation targets")
+        response = Response(cell, self.response.load, self.cfg.steps, mat=self.response.mat)
+        designs = [{"radii": jnp.asarray(r)} for r in [self.params0["radii"], *radii]]
+        X = np.stack([np.asarray(cell.reference_points(p)) for p in designs])
+        out, _ = response.paths(X)
+        done = out.status == float(Status.CONVERGED)
+        poisson = np.where(done, np.asarray(self.poisson_of(out.lateral)), np.nan)
+        base = poisson[0] if done[0] else self.baseline_poisson
+        error = np.abs(np.where(done[1:], poisson[1:], base) - ts)
+        reached = np.isfinite(out.strain)  # the states each path got to, each one checked
+        bad = reached & (out.valid == 0.0)
+        crit = [None if np.isnan(c) else float(c) for c in out.critical]
+        fid = cell.disc.mesh.fidelity
+        return {
+            "fidelity": {
+                "ctrl_per_patch": int(fid.ctrl_per_patch),
+                "quad_points": int(fid.quad_points),
+                "dofs": 2 * int(X.shape[1]),
+            },
+            "value": float(np.mean(error)),
+            "per_sample": error.tolist(),
+            "reached": [None if not ok else float(p) for ok, p in zip(done[1:], poisson[1:])],
+            "failed_solves": int(np.sum(~done[1:])),
+            "invalid_states": int(bad[1:].sum()),
+            "checked_states": int(reached[1:].sum()),
+            "critical_strains": crit[1:],
+            "porosity": [porosity(cell, p) for p in designs[1:]],
+            "baseline_poisson": float(poisson[0]) if done[0] else None,
+            "baseline_critical_strain": crit[0],
+            "baseline_error": float(np.mean(np.abs(base - ts))),
+            "baseline_invalid_states": int(bad[0].sum()),
+        }
 
     def solve(self, sim, X, d, mat):
         Xs = self.design_points(X, d)

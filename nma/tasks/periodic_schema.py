@@ -14,7 +14,8 @@ from .task_config import TaskConfig
 @dataclass
 class PeriodicPoissonTask(TaskConfig):
     """The effective Poisson's ratio -eps_lateral / eps_axial of a periodic scene's cell (its
-    fidelity, contact and material the run's), from circular holes of task.porosity, compressed
+    fidelity, contact and material the run's), from its initial design (circular holes of
+    scene.porosity), compressed
     under uniaxial nominal stress to task.strain, brought to a target."""
 
     periodic: ClassVar[bool] = True  # it runs on a periodic scene (nma.periodic)
@@ -23,9 +24,6 @@ class PeriodicPoissonTask(TaskConfig):
         "periodic_poisson",
         ("periodic_poisson", "periodic_poisson_amortised"),
         doc="one design to task.target, or a network over task.target_range",
-    )
-    porosity: float = bounded(
-        0.5, "[0.1, 0.7]", doc="the initial design: circular holes of this porosity (the baseline)"
     )
     axis: str = choice("y", ("x", "y"), doc="the compressed axis")
     strain: float = bounded(
