@@ -107,7 +107,8 @@ def test_slurm_launcher_preset_composes():
 
 def test_the_whole_paper_runs_every_reproduction_once_in_lanes():
     """experiments/repro_all.py (make repro-all): every Makefile repro-* target exactly once in each
-    lane layout, each passing the lane's overrides on (REPRO_ARGS) to experiments/repro.py."""
+    lane layout, each passing the lane's overrides on (REPRO_ARGS) to experiments/repro.py (the
+    periodic ones to experiments/periodic_repro.py)."""
     import re
     from pathlib import Path
 
@@ -118,7 +119,10 @@ def test_the_whole_paper_runs_every_reproduction_once_in_lanes():
     assert targets.pop("all") == "$(PYTHON) experiments/repro_all.py"
     assert targets.pop("check") == "$(PYTHON) experiments/guard.py"  # not a reproduction
     assert all(
-        recipe.startswith("$(PYTHON) experiments/repro.py ") and recipe.endswith(" $(REPRO_ARGS)")
+        recipe.startswith(
+            ("$(PYTHON) experiments/repro.py ", "$(PYTHON) experiments/periodic_repro")
+        )
+        and recipe.endswith(" $(REPRO_ARGS)")
         for recipe in targets.values()
     )
     for lanes in repro_all.LANES.values():
