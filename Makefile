@@ -8,7 +8,7 @@ LOCK = requirements.lock
 # compilation cache is shared).  PARALLEL= runs the tests in one process, as does an install without it.
 PARALLEL ?= $(shell $(PYTHON) -c "import xdist" 2>/dev/null && echo "-n auto --maxprocesses 4 --dist worksteal")
 
-.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy repro-periodic-poisson repro-periodic-poisson-amortised study-min-feature repro-all repro-check verify settings-reference clean
+.PHONY: help install lock format lint test test-all bench bench-kernels bench-train bench-dynamics bench-periodic study-fidelity study-reference study-wellposed study-round study-stability study-incompressible docs simulate run tutorial repro-translation repro-rotation-single repro-rotation-double repro-shape-matching repro-digital-mnist repro-dynamic-follow repro-dynamic-energy repro-periodic-poisson repro-periodic-poisson-amortised study-min-feature repro-all repro-check verify settings-reference clean
 
 help:               ## list the targets (the default: plain `make` installs nothing)
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | expand -t 24
@@ -51,6 +51,9 @@ bench-train:        ## training-step speed per scene: threads vs one, compile, c
 
 bench-dynamics:     ## a time step against a static solve; 100 steps forward + adjoint of the translation -> outputs/bench/dynamics.json
 	$(PYTHON) experiments/bench_dynamics.py
+
+bench-periodic:     ## one periodic solve of the 2 x 2 square array against the finite block of the same cells -> outputs/bench/periodic.json
+	$(PYTHON) experiments/bench_periodic.py
 
 study-fidelity:     ## speed against accuracy per scene; the fronts fidelity=auto reads -> outputs/studies/fidelity/, nma/data/fidelity/ (STUDY_ARGS=--unpinned: the well-posed variants)
 	$(PYTHON) experiments/fidelity_study.py $(STUDY_ARGS)
