@@ -147,11 +147,15 @@ def test_circular_holes_reach_the_target_porosity(porous):
         circular_holes(porous[0], 0.74)
 
 
+# the 2 x 2 supercell; its one interior grid node (the cells' shared corner) may move by 0.05
+SUPERCELL = {**square_array(2, 2), "corner_box": 0.05}
+
+
 @pytest.fixture(scope="module")
 def supercell():
     """A 2 x 2 supercell of the square array of circular holes at porosity 0.5, at 3 Gauss
     points."""
-    cell = periodic_cell(square_array(2, 2), {"quad_points": 3})
+    cell = periodic_cell(SUPERCELL, {"quad_points": 3})
     return cell, circular_holes(cell, 0.5)[0]
 
 
@@ -279,6 +283,26 @@ def test_effective_response_gradient_matches_central_differences(porous):
         assert d_mat[0] == pytest.approx(fd, rel=1e-5, abs=1e-9 * abs(q))
 
 
+def test_effective_response_gradient_in_a_corner_move_matches_central_differences(supercell):
+    # the supercell's shared interior corner moved off the square grid (a sheared pattern): the
+    # lateral stretch's derivative in that move by implicit differentiation against central
+    # differences of whole path solves
+    from nma.periodic.gradients import path_gradient
+
+    cell, params = supercell
+    params = {**params, "corners": jnp.array([[0.02, -0.01]])}
+    load, h = uniaxial("y", -0.03), 1e-5
+    solve = lambda params: follow(cell, load, 2, params, check_states=False)
+    path = solve(params)
+    _, d_params, _ = path_gradient(cell, load, path, 1, params, "free", 0)
+    for axis in (0, 1):
+        up, down = (
+            {**params, "corners": params["corners"].at[0, axis].add(s * h)} for s in (1, -1)
+        )
+        fd = (solve(up).F[1, 0] - solve(down).F[1, 0]) / (2 * h)
+        assert float(d_params["corners"][0, axis]) == pytest.approx(fd, rel=1e-5, abs=1e-9)
+
+
 def test_bad_load_or_steps_are_refused_naming_the_field(solid):
     with pytest.raises(ConfigError, match=r"steps must be an integer in \[1, 10000\], got 0"):
         follow(solid, uniaxial("x", -0.1), steps=0)
@@ -306,7 +330,7 @@ def test_contact_keeps_the_closing_pores_apart_where_without_it_they_cross(super
     without = follow(cell, load, steps=3, params=params)
     assert not without.valid[-1]
     assert any("crosses itself" in p for p in without.problems[-1][1])
-    touching = periodic_cell(square_array(2, 2), {"quad_points": 3}, contact={"enabled": True})
+    touching = periodic_cell(SUPERCELL, {"quad_points": 3}, contact={"enabled": True})
     path = follow(touching, load, steps=3, params=params)
     assert path.completed and path.valid.all()
     # the walls in contact carry load: the cell stiffens against the one without contact
