@@ -197,6 +197,10 @@ def test_a_run_in_time_whose_step_fails_exits_1_and_says_when(tmp_path):
         assert f["u"].shape[0] == dyn["states_reached"]
 
 
+# the dense backend's static solve and its time steps are checked at the library level in the fast
+# suite: test_solver.py's test_backends_agree, test_dynamics.py's
+# test_the_dense_backend_steps_through_time_as_the_host_ones
+@pytest.mark.slow
 def test_simulate_serves_the_dense_backend_static_and_in_time(tmp_path):
     """solver=dense: the static solve with its natural frequencies (from the scene's sparse
     pattern), and the run in time (its steps' Newton driven from the host with dense LU factors), as
