@@ -88,6 +88,22 @@ def test_response_gradient_matches_central_differences(cell):
     assert float(jnp.sum(grad * dr)) == pytest.approx(float(fd), rel=1e-5)
 
 
+def test_a_loss_through_an_output_without_a_gradient_is_refused(cell):
+    # the path's stress is reported, not differentiated by Response: a loss that reads it would get
+    # a zero gradient, so its backward pass says so instead
+    from nma.periodic.response import Response
+
+    params, _ = circular_holes(cell, 0.5)
+    response = Response(cell, uniaxial("y", -0.02), 1)
+    X = cell.disc.reference_points(params)[None]
+    stress = lambda X: jnp.sum(response(X).stress)
+    with pytest.raises(Exception, match=r"PathOutput.stress carries no gradient"):
+        jax.block_until_ready(jax.grad(stress)(X))
+    # reading it beside the lateral stretch, without differentiating it, is fine
+    both = lambda X: response(X).lateral[0] + jax.lax.stop_gradient(jnp.sum(response(X).stress))
+    assert np.isfinite(np.asarray(jax.grad(both)(X))).all()
+
+
 def test_refined_resolve_maps_the_same_design_and_scores_it(cell, holes):
     # a design's parameters at 8 x 4 give the same geometry (knot insertion is exact: Boehm 1980),
     # so the same porosity and pores; its path is then followed and scored there

@@ -34,6 +34,10 @@ class PathOutput(NamedTuple):
     where the state passed nma.geometry.validity's checks; u: (n, S, n_points, 2) the states;
     status: (n,) a Status as a float (CONVERGED: the whole path); critical: (n,) the strain of the
     bifurcation crossed (NaN: none).
+
+    Only `lateral` carries a gradient: a loss that differentiates strain, poisson, stress, u or
+    critical is refused in the backward pass (nma.periodic.gradients.path_gradient differentiates
+    a path's stress at any of its points).
     """
 
     lateral: jnp.ndarray
@@ -44,6 +48,21 @@ class PathOutput(NamedTuple):
     u: jnp.ndarray
     status: jnp.ndarray
     critical: jnp.ndarray
+
+
+# outputs a loss may read but not differentiate (their cotangents have no adjoint here)
+UNDIFFERENTIATED = ("strain", "poisson", "stress", "u", "critical")
+
+
+def refuse_untracked(cotangents: dict) -> None:
+    """ValueError naming the first output of UNDIFFERENTIATED whose cotangent is not zero: a
+    gradient through it would be silently zero."""
+    for name, c in cotangents.items():
+        if np.any(np.asarray(c) != 0):
+            raise ValueError(
+                f"PathOutput.{name} carries no gradient (only lateral does): differentiate a "
+                "path's stress with nma.periodic.gradients.path_gradient"
+            )
 
 
 class Response:
@@ -160,13 +179,20 @@ class Response:
 
         def bwd(res, ct):
             X, zs, status = res
+            untracked = {k: getattr(ct, k) for k in UNDIFFERENTIATED}
+
+            def host_gradients(X, zs, s, c, untracked):
+                refuse_untracked(untracked)
+                return self.gradients(X, zs, s, c).astype(np.float64)
+
             g = jax.pure_callback(
-                lambda X, zs, s, c: self.gradients(X, zs, s, c).astype(np.float64),
+                host_gradients,
                 jax.ShapeDtypeStruct(X.shape, jnp.float64),
                 X,
                 zs,
                 status,
                 ct.lateral,
+                untracked,
             )
             return (g,)
 
