@@ -54,7 +54,7 @@ class PathOutput(NamedTuple):
 UNDIFFERENTIATED = ("strain", "poisson", "stress", "u", "critical")
 
 
-def refuse_untracked(cotangents: dict) -> None:
+def _refuse_untracked(cotangents: dict) -> None:
     """ValueError naming the first output of UNDIFFERENTIATED whose cotangent is not zero: a
     gradient through it would be silently zero."""
     for name, c in cotangents.items():
@@ -182,7 +182,7 @@ class Response:
             untracked = {k: getattr(ct, k) for k in UNDIFFERENTIATED}
 
             def host_gradients(X, zs, s, c, untracked):
-                refuse_untracked(untracked)
+                _refuse_untracked(untracked)
                 return self.gradients(X, zs, s, c).astype(np.float64)
 
             g = jax.pure_callback(
