@@ -1,6 +1,33 @@
 import os
+import shlex
+import sys
 
 os.environ.setdefault("WANDB_MODE", "disabled")
+
+
+def _fast_suite_only() -> bool:
+    """Whether this pytest run keeps pyproject's `-m 'not slow'`: no -m of its own on the command
+    line or in PYTEST_ADDOPTS (`-m slow`, `-m ""` and the like select slow tests)."""
+    argv = shlex.split(os.environ.get("PYTEST_ADDOPTS", "")) + sys.argv[1:]
+    marks = [b for a, b in zip(argv, argv[1:]) if a == "-m"]
+    marks += [a[2:] for a in argv if a.startswith("-m") and len(a) > 2]
+    return all("slow" in m and "slow" not in m.replace("not slow", "") for m in marks)
+
+
+# The fast suite compiles some thousand distinct programs and runs most a few times, so XLA's
+# compile time outweighs its code's speed there: the CPU backend's legacy emitters and no LLVM
+# optimisation compile in about half the time and run at most 2x slower.  Results agree with the
+# optimised programs' to round-off (IEEE arithmetic either way), far below the fast tests'
+# tolerances.  The slow suite (long runs, canaries pinned from the commands' own programs) compiles
+# as the commands do, and so does NMA_TEST_XLA_FLAGS=off.  The worker processes (which inherit the
+# controller's choice) and the commands the tests start take the flags from the environment.
+TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
+if (
+    os.environ.get("NMA_TEST_XLA_FLAGS", "on") != "off"
+    and "PYTEST_XDIST_WORKER" not in os.environ
+    and _fast_suite_only()
+):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAGS}".strip()
 
 from nma.runtime import configure_jax  # noqa: E402
 
@@ -10,7 +37,6 @@ configure_jax()
 
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
