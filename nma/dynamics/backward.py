@@ -69,7 +69,16 @@ class Sweep:
         # K(u_{n+1}) + B differs from the neighbouring step's too much to refine from its factor
         lam = s.ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[dyn.free], refine=False)
         self.design_bar, mb, ub, vb, ab, uDb = k.pullback(
-            design, mat, u, v, a, uf1, u1[dyn.dirichlet], step.dt, jnp.asarray(lam), self.design_bar
+            design,
+            mat,
+            u,
+            v,
+            a,
+            uf1,
+            jnp.asarray(np.asarray(u1)[dyn.dirichlet]),
+            step.dt,
+            jnp.asarray(lam),
+            self.design_bar,
         )
         d_bar = dyn.A.T @ (np.asarray(uDb) + u1_bar[dyn.dirichlet])
         self.c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
