@@ -24,6 +24,7 @@ from nma.mechanics.options import ContactSettings
 from nma.schema import ContactConfig, Fidelity, build
 from nma.simulator import Simulator
 from nma.solver.assembly import sparse_pattern
+from nma.solver.equations import Equations
 from nma.solver.linear import DenseBackend
 from nma.solver import loading
 from nma.solver.status import Status
@@ -265,12 +266,13 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     solved = {}
     for slots in (2, None):  # far fewer than touch; every block
         monkeypatch.setattr(host, "CONTACT_SLOTS", slots or model.n_blocks)
-        newton = host.HostNewton(sim.equations, sim.backend, sim.options)
+        # equations of their own: the kernels built for them are this solve's alone
+        newton = host.HostNewton(Equations(sim.disc), sim.backend, sim.options)
         u, info, _ = HostBatches(newton, workers=1).forward_batch(
             X[None], d[None], MAT[None], keep=False
         )
         assert int(info.status[0]) == Status.CONVERGED
-        solved[slots] = u[0], set(newton._kernels)
+        solved[slots] = u[0], {room for _, room in host.Kernels._shared[newton.eqs]}
     rooms = solved[2][1]  # the rooms it took: 2, then 4x as much until they hold the near blocks
     assert (
         2 in rooms

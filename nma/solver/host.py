@@ -7,6 +7,7 @@ batch's cold solves of one design share their first iteration, the tangent at re
 from __future__ import annotations
 
 import threading
+import weakref
 from functools import partial
 
 import jax
@@ -64,6 +65,20 @@ class Kernels:
     given number of contact slots: one dispatch and one wait per iteration, each kernel ending with
     the next linearisation."""
 
+    _shared: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+    _shared_lock = threading.Lock()
+
+    @classmethod
+    def of(cls, eqs: Equations, opts: NewtonOptions, room: int | None) -> "Kernels":
+        """The kernels of `eqs` under `opts` with room for `room` contact blocks (None: no
+        contact): one set per Equations object, options and room, shared by every HostNewton on
+        them (a Simulator's solves and its Dynamics' steps), so that each is traced once."""
+        with cls._shared_lock:
+            built = cls._shared.setdefault(eqs, {})
+            if (opts, room) not in built:
+                built[opts, room] = cls(eqs.with_contact_slots(room), opts)
+            return built[opts, room]
+
     def __init__(self, eqs: Equations, opts: NewtonOptions):
         self.start = jax.jit(partial(_start, eqs, opts))
         self.start_warm = jax.jit(partial(_start_warm, eqs, opts))
@@ -81,13 +96,10 @@ class HostNewton:
 
     def __init__(self, eqs: Equations, backend, opts: NewtonOptions):
         self.eqs, self.backend, self.opts = eqs, backend, opts
-        # for each room for contact blocks (None: no contact)
-        self._kernels: dict[int | None, Kernels] = {}
         self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
         self._hold = jax.jit(partial(hold, opts))
         self._energy = jax.jit(partial(energy_at, eqs))
         self._pullback = jax.jit(partial(pullback, eqs))
-        self._lock = threading.Lock()
 
     def linearised(self, call, slots: int | None = None, tangents=lambda out: out[-1].kel):
         """call(Kernels) with room for `slots` contact blocks, again with 4x as much until its
@@ -98,11 +110,7 @@ class HostNewton:
         slots = slots or CONTACT_SLOTS
         while True:
             room = min(slots, self.eqs.solid.contact.n_blocks) if self.eqs.solid.contact else None
-            with self._lock:
-                kernels = self._kernels.get(room) or self._kernels.setdefault(
-                    room, Kernels(self.eqs.with_contact_slots(room), self.opts)
-                )
-            out = call(kernels)
+            out = call(Kernels.of(self.eqs, self.opts, room))
             kel = tangents(out)
             if bool(kel.complete):
                 return out
