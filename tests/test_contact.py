@@ -7,6 +7,8 @@ top: at 4 of its 5 length units the top wall reaches the bottom wall, so without
 boundary passes through itself (nma/geometry/validity.py sees it) while the solver reports
 convergence."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -266,13 +268,14 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     solved = {}
     for slots in (2, None):  # far fewer than touch; every block
         monkeypatch.setattr(host, "CONTACT_SLOTS", slots or model.n_blocks)
-        # equations of their own: the kernels built for them are this solve's alone
-        newton = host.HostNewton(Equations(sim.disc), sim.backend, sim.options)
+        # a discretisation of its own: the kernels built for it are this solve's alone
+        disc = dataclasses.replace(sim.disc)
+        newton = host.HostNewton(Equations(disc), sim.backend, sim.options)
         u, info, _ = HostBatches(newton, workers=1).forward_batch(
             X[None], d[None], MAT[None], keep=False
         )
         assert int(info.status[0]) == Status.CONVERGED
-        solved[slots] = u[0], {room for _, room in host.Kernels._shared[newton.eqs]}
+        solved[slots] = u[0], {room for _, room in host.Kernels._shared[disc]}
     rooms = solved[2][1]  # the rooms it took: 2, then 4x as much until they hold the near blocks
     assert (
         2 in rooms

@@ -48,6 +48,7 @@ class Equations:
     `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
 
     def __init__(self, disc: Discretisation, contact_slots: int | None = None):
+        self.disc = disc  # all the rest follows from it (nma.solver.host.Kernels.of)
         self.solid, self.boundary = disc.solid, disc.boundary
         self.contact_slots = contact_slots
         self.free = jnp.asarray(disc.boundary.free_dofs)

@@ -71,10 +71,11 @@ class Kernels:
     @classmethod
     def of(cls, eqs: Equations, opts: NewtonOptions, room: int | None) -> "Kernels":
         """The kernels of `eqs` under `opts` with room for `room` contact blocks (None: no
-        contact): one set per Equations object, options and room, shared by every HostNewton on
-        them (a Simulator's solves and its Dynamics' steps), so that each is traced once."""
+        contact): one set per discretisation (which the equations are a function of), options and
+        room, shared by every HostNewton on them (the Simulators built on one discretisation, and
+        their Dynamics' steps), so that each is traced once."""
         with cls._shared_lock:
-            built = cls._shared.setdefault(eqs, {})
+            built = cls._shared.setdefault(eqs.disc, {})
             if (opts, room) not in built:
                 built[opts, room] = cls(eqs.with_contact_slots(room), opts)
             return built[opts, room]
