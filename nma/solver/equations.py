@@ -6,6 +6,7 @@ their blocks; at a state, its energy, tangents and the adjoint's pullback), one 
 from __future__ import annotations
 
 import copy
+import weakref
 from typing import NamedTuple
 
 import jax
@@ -48,7 +49,9 @@ class Equations:
     `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
 
     def __init__(self, disc: Discretisation, contact_slots: int | None = None):
-        self.disc = disc  # all the rest follows from it (nma.solver.host.Kernels.of)
+        # all the rest follows from it: the key of the kernels built for these equations
+        # (nma.solver.host.Kernels.of), weak so that those kernels do not keep it alive
+        self.discretisation = weakref.ref(disc)
         self.solid, self.boundary = disc.solid, disc.boundary
         self.contact_slots = contact_slots
         self.free = jnp.asarray(disc.boundary.free_dofs)

@@ -75,7 +75,8 @@ class Kernels:
         room, shared by every HostNewton on them (the Simulators built on one discretisation, and
         their Dynamics' steps), so that each is traced once."""
         with cls._shared_lock:
-            built = cls._shared.setdefault(eqs.disc, {})
+            # equations whose discretisation is gone: their own
+            built = cls._shared.setdefault(eqs.discretisation() or eqs, {})
             if (opts, room) not in built:
                 built[opts, room] = cls(eqs.with_contact_slots(room), opts)
             return built[opts, room]
