@@ -184,6 +184,29 @@ def test_threads_give_the_sequential_answer_and_reuse_each_samples_factor():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_simulators_on_one_discretisation_share_newtons_kernels_and_let_them_go_with_it():
+    """Newton's compiled kernels are built once per discretisation, options and contact room
+    (nma.solver.host.Kernels.of): a second Simulator on the same discretisation solves with the
+    first one's, traced once; when the discretisation goes, they go too (they hold it weakly)."""
+    import gc
+    import weakref
+
+    from nma.solver.host import Kernels
+
+    first = Simulator(discretise(scene_from_config(SMALL)), "superlu")
+    second = Simulator(first.disc, "pardiso", first.options)
+    for sim in (first, second):
+        eq = sim.solve(sim.init_params(), jnp.array([0.5, 0.5]), material(0.07, 0.3))
+        assert int(eq.info.status) == Status.CONVERGED
+    built = Kernels._shared[first.disc]
+    assert list(built) == [(first.options, None)]  # no contact: no room
+    assert Kernels.of(second.equations, second.options, None) is built[first.options, None]
+    kernels, disc = weakref.ref(built[first.options, None]), weakref.ref(first.disc)
+    del first, second, sim, built
+    gc.collect()
+    assert kernels() is None and disc() is None
+
+
 def test_jacobian_through_the_host_solver_matches_row_by_row_gradients():
     """jacrev sends several cotangents through one forward's kept workspace at once."""
     disc = discretise(scene_from_config(SMALL))
