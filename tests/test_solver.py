@@ -184,7 +184,7 @@ def test_threads_give_the_sequential_answer_and_reuse_each_samples_factor():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_simulators_on_one_discretisation_share_newtons_kernels_and_let_them_go_with_it():
+def test_simulators_on_one_discretisation_share_kernels_that_go_with_it():
     """Newton's compiled kernels are built once per discretisation, options and contact room
     (nma.solver.host.Kernels.of): a second Simulator on the same discretisation solves with the
     first one's, traced once; when the discretisation goes, they go too (they hold it weakly)."""
