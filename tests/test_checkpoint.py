@@ -9,7 +9,14 @@ import time
 
 import pytest
 
-from conftest import FAST, assert_same_params, copy_run, final_params, nma_run
+from conftest import (
+    FAST,
+    assert_same_params,
+    copy_run,
+    final_params,
+    nma_run,
+    train_in_process,
+)
 from nma.errors import ConfigError
 
 
@@ -66,7 +73,7 @@ def test_sigterm_checkpoints_says_so_and_resumes_to_the_uninterrupted_run(
     assert [p.name for p in (stopped / "checkpoints").glob("step_*.msgpack")] == [
         "step_0000001.msgpack"
     ]
-    nma_run(stopped, *args, "trainer.resume=true")
+    train_in_process(stopped, *args, "trainer.resume=true")  # the resume itself, in this process
     assert_same_params(final_params(stopped), final_params(translation_run), rtol=1e-12)
 
 
