@@ -7,7 +7,7 @@ top: at 4 of its 5 length units the top wall reaches the bottom wall, so without
 boundary passes through itself (nma/geometry/validity.py sees it) while the solver reports
 convergence."""
 
-import dataclasses
+import weakref
 
 import jax
 import jax.numpy as jnp
@@ -28,7 +28,7 @@ from nma.simulator import Simulator
 from nma.solver.assembly import sparse_pattern
 from nma.solver.equations import Equations
 from nma.solver.linear import DenseBackend
-from nma.solver import loading
+from nma.solver import host, loading
 from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
@@ -45,6 +45,13 @@ MAT = material(0.07, 0.3)
 # press depths: the pore's walls 15 x d_hat apart, and pressed onto each other
 OPEN, CLOSED = 2.0, 4.0
 TIGHT = NewtonOptions(rtol=1e-12, max_iters=500)
+
+
+def fresh_kernels(monkeypatch):
+    """An empty table of Newton's kernels (nma.solver.host.Kernels.of) for the rest of the test:
+    those traced from here see its patches (a solver built before keeps its own)."""
+    monkeypatch.setattr(host.Kernels, "_by_content", weakref.WeakValueDictionary())
+    monkeypatch.setattr(host.Kernels, "_by_disc", weakref.WeakKeyDictionary())
 
 
 @pytest.fixture(scope="module")
@@ -143,9 +150,8 @@ def test_a_predictor_the_walls_stop_keeps_its_load(cell, monkeypatch):
     d = jnp.array([CLOSED])
     on = sims[True].solve(params, d, MAT)
     monkeypatch.setattr(loading, "past_the_walls", lambda *args: jnp.zeros(()))
-    # a discretisation of its own: new kernels, traced without it (nma.solver.host.Kernels.of)
-    disc = dataclasses.replace(sims[True].disc)
-    stopped = Simulator(disc, "superlu", TIGHT).solve(params, d, MAT)
+    fresh_kernels(monkeypatch)  # traced without it
+    stopped = Simulator(sims[True].disc, "superlu", TIGHT).solve(params, d, MAT)
     assert on.converged and stopped.converged and checker.check(on.u).valid
     assert int(on.info.load_steps) < int(stopped.info.load_steps)
     np.testing.assert_allclose(on.u, stopped.u, rtol=0, atol=1e-8 * float(jnp.abs(stopped.u).max()))
@@ -247,7 +253,6 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     that starts with too few slots asks again with more and ends on the same state (to round-off:
     each room is a
     program of its own)."""
-    from nma.solver import host
     from nma.solver.batch import HostBatches
 
     sim, params, X, u = touching
@@ -269,15 +274,16 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
     solved = {}
     for slots in (2, None):  # far fewer than touch; every block
         monkeypatch.setattr(host, "CONTACT_SLOTS", slots or model.n_blocks)
-        # a discretisation of its own: the kernels built for it are this solve's alone
-        disc = dataclasses.replace(sim.disc)
-        newton = host.HostNewton(Equations(disc), sim.backend, sim.options)
+        fresh_kernels(monkeypatch)  # the kernels built are this solve's alone
+        newton = host.HostNewton(Equations(sim.disc), sim.backend, sim.options)
         u, info, _ = HostBatches(newton, workers=1).forward_batch(
             X[None], d[None], MAT[None], keep=False
         )
         assert int(info.status[0]) == Status.CONVERGED
-        solved[slots] = u[0], {room for _, room in host.Kernels._shared[disc]}
-    rooms = solved[2][1]  # the rooms it took: 2, then 4x as much until they hold the near blocks
+        # the rooms its linearisations took (None: the kernels that need none, energy and pullback)
+        rooms = {room for _, room in host.Kernels._by_disc[sim.disc]} - {None}
+        solved[slots] = u[0], rooms
+    rooms = solved[2][1]  # 2, then 4x as much until they hold the near blocks
     assert (
         2 in rooms
         and max(rooms) >= near

@@ -5,12 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nma.discretise import discretise
+from nma.discretise import Resolution, discretise
 from nma.schema import scene_from_config
 from nma.mechanics.material import material
 from nma.simulator import Simulator
 from nma import config
 from nma.errors import ConfigError, SolverError
+from nma.solver.equations import Equations
 from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
@@ -184,25 +185,34 @@ def test_threads_give_the_sequential_answer_and_reuse_each_samples_factor():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_simulators_on_one_discretisation_share_kernels_that_go_with_it():
-    """Newton's compiled kernels are built once per discretisation, options and contact room
-    (nma.solver.host.Kernels.of): a second Simulator on the same discretisation solves with the
-    first one's, traced once; when the discretisation goes, they go too (they hold it weakly)."""
+def test_simulators_on_equal_discretisations_share_kernels_that_go_with_them():
+    """Newton's compiled kernels are built once per discretisation's content, options and contact
+    room (nma.solver.host.Kernels.of): a second Simulator on the same discretisation, and a third on
+    another of the same scene, solve with the first one's, traced once; when the discretisations
+    go, they go too (they hold them weakly)."""
     import gc
     import weakref
 
     from nma.solver.host import Kernels
 
-    first = Simulator(discretise(scene_from_config(SMALL)), "superlu")
+    # a scene no other test builds: no other discretisation holds its content's kernels
+    scene = {**SMALL, "name": "shares_kernels"}
+    first = Simulator(discretise(scene_from_config(scene)), "superlu")
     second = Simulator(first.disc, "pardiso", first.options)
-    for sim in (first, second):
+    third = Simulator(discretise(scene_from_config(scene)), "superlu")
+    assert third.disc is not first.disc
+    for sim in (first, second, third):
         eq = sim.solve(sim.init_params(), jnp.array([0.5, 0.5]), material(0.07, 0.3))
         assert int(eq.info.status) == Status.CONVERGED
-    built = Kernels._shared[first.disc]
+    built = Kernels._by_disc[first.disc]
+    assert Kernels._by_disc[third.disc] is built
     assert list(built) == [(first.options, None)]  # no contact: no room
-    assert Kernels.of(second.equations, second.options, None) is built[first.options, None]
+    assert Kernels.of(third.equations, third.options, None) is built[first.options, None]
+    # another fidelity of the scene: kernels of its own
+    other = discretise(scene_from_config(scene), Resolution(5, 3))
+    assert Kernels._built(Equations(other)) is not built
     kernels, disc = weakref.ref(built[first.options, None]), weakref.ref(first.disc)
-    del first, second, sim, built
+    del first, second, third, sim, built
     gc.collect()
     assert kernels() is None and disc() is None
 

@@ -6,6 +6,8 @@ batch's cold solves of one design share their first iteration, the tangent at re
 
 from __future__ import annotations
 
+import hashlib
+import pickle
 import threading
 import weakref
 from functools import partial
@@ -65,21 +67,38 @@ class Kernels:
     given number of contact slots: one dispatch and one wait per iteration, each kernel ending with
     the next linearisation."""
 
-    _shared: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+    # the kernel sets of each discretisation's content, alive while a discretisation with that
+    # content is (each discretisation holds its content's sets)
+    _by_content: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+    _by_disc: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
     _shared_lock = threading.Lock()
 
     @classmethod
     def of(cls, eqs: Equations, opts: NewtonOptions, room: int | None) -> "Kernels":
         """The kernels of `eqs` under `opts` with room for `room` contact blocks (None: no
         contact): one set per discretisation (which the equations are a function of), options and
-        room, shared by every HostNewton on them (the Simulators built on one discretisation, and
-        their Dynamics' steps), so that each is traced once."""
+        room, shared by every HostNewton on it or on an equal one (the Simulators built on one
+        scene and fidelity, and their Dynamics' steps), so that each is traced once."""
         with cls._shared_lock:
-            # equations whose discretisation is gone: their own
-            built = cls._shared.setdefault(eqs.discretisation() or eqs, {})
+            built = cls._built(eqs)
             if (opts, room) not in built:
                 built[opts, room] = cls(eqs.with_contact_slots(room), opts)
             return built[opts, room]
+
+    @classmethod
+    def _built(cls, eqs: Equations) -> "_KernelSets":
+        disc = eqs.discretisation()
+        if disc is None:  # equations whose discretisation is gone: their own
+            return cls._by_disc.setdefault(eqs, _KernelSets())
+        if disc not in cls._by_disc:
+            key = content_key(disc)
+            sets = None if key is None else cls._by_content.get(key)
+            if sets is None:
+                sets = _KernelSets()
+                if key is not None:
+                    cls._by_content[key] = sets
+            cls._by_disc[disc] = sets
+        return cls._by_disc[disc]
 
     def __init__(self, eqs: Equations, opts: NewtonOptions):
         self.start = jax.jit(partial(_start, eqs, opts))
@@ -89,6 +108,23 @@ class Kernels:
         self.step = jax.jit(partial(_step, eqs, opts))
         self.leave = jax.jit(partial(leave_saddle, eqs, opts))
         self.tangents = jax.jit(partial(tangents_at, eqs))
+        self.hold = jax.jit(partial(hold, opts))
+        self.energy = jax.jit(partial(energy_at, eqs))
+        self.pullback = jax.jit(partial(pullback, eqs))
+
+
+class _KernelSets(dict):
+    """(options, room) -> Kernels, of one discretisation's content (a dict that weak references
+    can hold)."""
+
+
+def content_key(disc) -> str | None:
+    """A digest of everything a discretisation holds (None where it cannot be pickled: then only
+    the discretisation itself shares its kernels): equal digests, equal equations."""
+    try:
+        return hashlib.sha256(pickle.dumps(disc, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
 
 
 class HostNewton:
@@ -99,9 +135,8 @@ class HostNewton:
     def __init__(self, eqs: Equations, backend, opts: NewtonOptions):
         self.eqs, self.backend, self.opts = eqs, backend, opts
         self.warm = WarmStarts(opts.warm_pool, opts.warm_audit) if opts.warm_start else None
-        self._hold = jax.jit(partial(hold, opts))
-        self._energy = jax.jit(partial(energy_at, eqs))
-        self._pullback = jax.jit(partial(pullback, eqs))
+        # what needs no contact room: the equations' own (every block)
+        self._kernels = Kernels.of(eqs, opts, None)
 
     def linearised(self, call, slots: int | None = None, tangents=lambda out: out[-1].kel):
         """call(Kernels) with room for `slots` contact blocks, again with 4x as much until its
@@ -143,7 +178,7 @@ class HostNewton:
                 audit = Audit(float(np.max(np.abs(u - cold)) / max(np.max(np.abs(cold)), 1e-300)))
                 if audit.same:
                     return u, info, audit
-                energy = lambda v: float(self._energy(X, d, mat, v))
+                energy = lambda v: float(self._kernels.energy(X, d, mat, v))
                 return (
                     cold,
                     cold_info,
@@ -229,10 +264,10 @@ class HostNewton:
                 break
             # a warm start that is not quick
             if budget is not None and next_status == Status.RUNNING and it >= budget:
-                s = self._hold(lin)._replace(status=jnp.asarray(Status.ITERATION_LIMIT))
+                s = self._kernels.hold(lin)._replace(status=jnp.asarray(Status.ITERATION_LIMIT))
                 break
             if next_status != Status.RUNNING and not check:
-                s = self._hold(lin)
+                s = self._kernels.hold(lin)
                 break
             factor, shared = shared or ws, None
             # a converged state's factor is of K itself (its inertia; the adjoint's), else of the
@@ -249,7 +284,7 @@ class HostNewton:
                     lin = left
                     continue
                 if next_status != Status.RUNNING:
-                    s = self._hold(lin)
+                    s = self._kernels.hold(lin)
                     break
                 # the predictor that follows is solved with the kept shift
                 if factor is ws and float(shift):
@@ -271,7 +306,9 @@ class HostNewton:
             )
         lam = ws.adjoint(kel, u_bar)
         with kernels():
-            return jax.block_until_ready(self._pullback(X, d, mat, u_free, jnp.asarray(lam)))
+            return jax.block_until_ready(
+                self._kernels.pullback(X, d, mat, u_free, jnp.asarray(lam))
+            )
 
 
 def _start(eqs, opts, X, d, mat):
