@@ -4,6 +4,8 @@ Deschanvres, Bertoldi & Boyce, PRL 99, 084301, 2007; Bertoldi, Reis, Willshaw & 
 
 from __future__ import annotations
 
+import weakref
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,10 +53,18 @@ def circle_params(cell: PeriodicCell, radius: float) -> dict:
     return {**params, "radii": jnp.broadcast_to(jnp.asarray(side), params["radii"].shape)}
 
 
+# each discretisation's quadrature weights as a function of X, compiled once (a bisection for a
+# porosity calls it tens of times)
+_WEIGHTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def porosity(cell: PeriodicCell, params) -> float:
     """The pores' share of the periodic box: 1 - the material's reference area / the box's."""
     X = cell.disc.reference_points(params)
-    area = float(jnp.sum(jax.jit(lambda X: quadrature(cell.disc.solid, X).weights)(X)))
+    if cell.disc not in _WEIGHTS:
+        solid = cell.disc.solid  # not the discretisation: the cache must not keep it alive
+        _WEIGHTS[cell.disc] = jax.jit(lambda X: quadrature(solid, X).weights)
+    area = float(jnp.sum(_WEIGHTS[cell.disc](X)))
     return 1.0 - area / cell.area
 
 
