@@ -28,7 +28,7 @@ from nma.simulator import Simulator
 from nma.solver.assembly import sparse_pattern
 from nma.solver.equations import Equations
 from nma.solver.linear import DenseBackend
-from nma.solver import host, loading
+from nma.solver import equations, host, loading
 from nma.solver.status import Status
 from nma.solver.options import NewtonOptions
 
@@ -48,10 +48,10 @@ TIGHT = NewtonOptions(rtol=1e-12, max_iters=500)
 
 
 def fresh_kernels(monkeypatch):
-    """An empty table of Newton's kernels (nma.solver.host.Kernels.of) for the rest of the test:
+    """An empty table of compiled kernels (nma.solver.equations.compiled) for the rest of the test:
     those traced from here see its patches (a solver built before keeps its own)."""
-    monkeypatch.setattr(host.Kernels, "_by_content", weakref.WeakValueDictionary())
-    monkeypatch.setattr(host.Kernels, "_by_disc", weakref.WeakKeyDictionary())
+    monkeypatch.setattr(equations, "_BY_CONTENT", weakref.WeakValueDictionary())
+    monkeypatch.setattr(equations, "_BY_DISC", weakref.WeakKeyDictionary())
 
 
 @pytest.fixture(scope="module")
@@ -281,7 +281,8 @@ def test_contact_slots_hold_the_near_blocks_or_say_they_cannot(touching, monkeyp
         )
         assert int(info.status[0]) == Status.CONVERGED
         # the rooms its linearisations took (None: the kernels that need none, energy and pullback)
-        rooms = {room for _, room in host.Kernels._by_disc[sim.disc]} - {None}
+        built = equations._BY_DISC[sim.disc]
+        rooms = {key[2] for key in built if key[0] == "newton"} - {None}
         solved[slots] = u[0], rooms
     rooms = solved[2][1]  # 2, then 4x as much until they hold the near blocks
     assert (

@@ -187,12 +187,13 @@ def test_threads_give_the_sequential_answer_and_reuse_each_samples_factor():
 
 def test_simulators_on_equal_discretisations_share_kernels_that_go_with_them():
     """Newton's compiled kernels are built once per discretisation's content, options and contact
-    room (nma.solver.host.Kernels.of): a second Simulator on the same discretisation, and a third on
+    room (nma.solver.equations.compiled): a second Simulator on the same discretisation, a third on
     another of the same scene, solve with the first one's, traced once; when the discretisations
     go, they go too (they hold them weakly)."""
     import gc
     import weakref
 
+    from nma.solver import equations
     from nma.solver.host import Kernels
 
     # a scene no other test builds: no other discretisation holds its content's kernels
@@ -204,14 +205,15 @@ def test_simulators_on_equal_discretisations_share_kernels_that_go_with_them():
     for sim in (first, second, third):
         eq = sim.solve(sim.init_params(), jnp.array([0.5, 0.5]), material(0.07, 0.3))
         assert int(eq.info.status) == Status.CONVERGED
-    built = Kernels._by_disc[first.disc]
-    assert Kernels._by_disc[third.disc] is built
-    assert list(built) == [(first.options, None)]  # no contact: no room
-    assert Kernels.of(third.equations, third.options, None) is built[first.options, None]
+    built = equations._BY_DISC[first.disc]
+    assert equations._BY_DISC[third.disc] is built
+    assert list(built) == [("newton", first.options, None)]  # no contact: no room
+    assert Kernels.of(third.equations, third.options, None) is built["newton", first.options, None]
     # another fidelity of the scene: kernels of its own
-    other = discretise(scene_from_config(scene), Resolution(5, 3))
-    assert Kernels._built(Equations(other)) is not built
-    kernels, disc = weakref.ref(built[first.options, None]), weakref.ref(first.disc)
+    other = Equations(discretise(scene_from_config(scene), Resolution(5, 3)))
+    assert Kernels.of(other, first.options, None) is not built["newton", first.options, None]
+    kernels = weakref.ref(built["newton", first.options, None])
+    disc = weakref.ref(first.disc)
     del first, second, third, sim, built
     gc.collect()
     assert kernels() is None and disc() is None

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from ..mechanics.energy import quadrature, strain_energy
-from ..solver.equations import Equations
+from ..solver.equations import Equations, compiled
 from .initial import has_dead_load
 from .mass import mass_blocks, rayleigh, stiffness_at_rest
 from .schemes import Scheme
@@ -30,6 +30,19 @@ from .schemes import Scheme
 class StepKernels:
     """The jitted pieces: the design's quadrature and matrices, a step's Inertia, the update, the
     adjoint's pieces."""
+
+    @classmethod
+    def of(cls, eqs: Equations, scheme: Scheme, density, alpha, beta, waveform) -> "StepKernels":
+        """The pieces for these equations, built once per discretisation's content, scheme,
+        density, damping and waveform (nma.solver.equations.compiled), so that Dynamics built anew
+        on one scene trace them once; a waveform that is not hashable: pieces of their own."""
+        build = lambda: cls(eqs, scheme, density, alpha, beta, waveform)
+        key = ("time step", scheme, density, alpha, beta, waveform)
+        try:
+            hash(key)
+        except TypeError:
+            return build()
+        return compiled(eqs, key, build)
 
     def __init__(
         self, eqs: Equations, scheme: Scheme, density: float, alpha: float, beta: float, waveform

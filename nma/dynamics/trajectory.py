@@ -138,7 +138,7 @@ class Dynamics:
         self.adjoint = ADJOINTS.get(adjoint)(options) if isinstance(adjoint, str) else adjoint
         self.waveform = waveform
         self.initial = Initial(self, start)
-        self.kernels = StepKernels(self.eqs, self.scheme, density, alpha, beta, waveform)
+        self.kernels = StepKernels.of(self.eqs, self.scheme, density, alpha, beta, waveform)
         self.newton = HostNewton(self.eqs, sim.backend, sim.options)
         self.free, self.dirichlet = np.asarray(self.eqs.free), np.asarray(self.eqs.dirichlet)
         self.A = np.asarray(self.eqs.A)

@@ -6,6 +6,9 @@ their blocks; at a state, its energy, tangents and the adjoint's pullback), one 
 from __future__ import annotations
 
 import copy
+import hashlib
+import pickle
+import threading
 import weakref
 from typing import NamedTuple
 
@@ -44,13 +47,60 @@ class Inertia(NamedTuple):
         )
 
 
+class _Compiled(dict):
+    """key -> what was compiled for one discretisation's content (a dict weak references can
+    hold)."""
+
+
+# what was compiled for each discretisation's content, alive while a discretisation with that
+# content is (each discretisation holds its content's)
+_BY_CONTENT: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+_BY_DISC: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_LOCK = threading.RLock()
+
+
+def compiled(eqs: "Equations", key, build):
+    """What `build()` makes (jitted kernels of these equations) under a hashable `key`, built once
+    per discretisation's content: equations built anew on one scene and fidelity (each Simulator
+    from a config builds its own) share it, and trace it once."""
+    with _LOCK:
+        table = _table(eqs)
+        if key not in table:
+            table[key] = build()
+        return table[key]
+
+
+def _table(eqs: "Equations") -> _Compiled:
+    disc = eqs.discretisation()
+    if disc is None:  # equations whose discretisation is gone: their own
+        return _BY_DISC.setdefault(eqs, _Compiled())
+    if disc not in _BY_DISC:
+        key = content_key(disc)
+        table = None if key is None else _BY_CONTENT.get(key)
+        if table is None:
+            table = _Compiled()
+            if key is not None:
+                _BY_CONTENT[key] = table
+        _BY_DISC[disc] = table
+    return _BY_DISC[disc]
+
+
+def content_key(disc: Discretisation) -> str | None:
+    """A digest of everything a discretisation holds (None where it cannot be pickled: then it
+    shares with no other): equal digests, equal equations."""
+    try:
+        return hashlib.sha256(pickle.dumps(disc, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
+
+
 class Equations:
     """The discrete equilibrium equations of one scene: everything Newton and the adjoint need.
     `contact_slots`: the contact blocks a linearisation's Tangents has room for (all where None)."""
 
     def __init__(self, disc: Discretisation, contact_slots: int | None = None):
-        # all the rest follows from it: the key of the kernels built for these equations
-        # (nma.solver.host.Kernels.of), weak so that those kernels do not keep it alive
+        # all the rest follows from it: the key of what is compiled for these equations
+        # (compiled), weak so that what was compiled does not keep it alive
         self.discretisation = weakref.ref(disc)
         self.solid, self.boundary = disc.solid, disc.boundary
         self.contact_slots = contact_slots

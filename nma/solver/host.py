@@ -6,10 +6,7 @@ batch's cold solves of one design share their first iteration, the tangent at re
 
 from __future__ import annotations
 
-import hashlib
-import pickle
 import threading
-import weakref
 from functools import partial
 
 import jax
@@ -17,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import saddles
-from .equations import Equations, energy_at, pullback, tangents_at
+from .equations import Equations, compiled, energy_at, pullback, tangents_at
 from .newton import advance, hold, leave_saddle, linearise, result
 from .options import NewtonOptions
 from .starts import continue_in_time, setup
@@ -67,38 +64,15 @@ class Kernels:
     given number of contact slots: one dispatch and one wait per iteration, each kernel ending with
     the next linearisation."""
 
-    # the kernel sets of each discretisation's content, alive while a discretisation with that
-    # content is (each discretisation holds its content's sets)
-    _by_content: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
-    _by_disc: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-    _shared_lock = threading.Lock()
-
     @classmethod
     def of(cls, eqs: Equations, opts: NewtonOptions, room: int | None) -> "Kernels":
         """The kernels of `eqs` under `opts` with room for `room` contact blocks (None: no
-        contact): one set per discretisation (which the equations are a function of), options and
-        room, shared by every HostNewton on it or on an equal one (the Simulators built on one
-        scene and fidelity, and their Dynamics' steps), so that each is traced once."""
-        with cls._shared_lock:
-            built = cls._built(eqs)
-            if (opts, room) not in built:
-                built[opts, room] = cls(eqs.with_contact_slots(room), opts)
-            return built[opts, room]
-
-    @classmethod
-    def _built(cls, eqs: Equations) -> "_KernelSets":
-        disc = eqs.discretisation()
-        if disc is None:  # equations whose discretisation is gone: their own
-            return cls._by_disc.setdefault(eqs, _KernelSets())
-        if disc not in cls._by_disc:
-            key = content_key(disc)
-            sets = None if key is None else cls._by_content.get(key)
-            if sets is None:
-                sets = _KernelSets()
-                if key is not None:
-                    cls._by_content[key] = sets
-            cls._by_disc[disc] = sets
-        return cls._by_disc[disc]
+        contact), built once per discretisation's content (nma.solver.equations.compiled): shared
+        by every HostNewton on it or on an equal one (the Simulators built on one scene and
+        fidelity, and their Dynamics' steps), so that each is traced once."""
+        return compiled(
+            eqs, ("newton", opts, room), lambda: cls(eqs.with_contact_slots(room), opts)
+        )
 
     def __init__(self, eqs: Equations, opts: NewtonOptions):
         self.start = jax.jit(partial(_start, eqs, opts))
@@ -111,20 +85,6 @@ class Kernels:
         self.hold = jax.jit(partial(hold, opts))
         self.energy = jax.jit(partial(energy_at, eqs))
         self.pullback = jax.jit(partial(pullback, eqs))
-
-
-class _KernelSets(dict):
-    """(options, room) -> Kernels, of one discretisation's content (a dict that weak references
-    can hold)."""
-
-
-def content_key(disc) -> str | None:
-    """A digest of everything a discretisation holds (None where it cannot be pickled: then only
-    the discretisation itself shares its kernels): equal digests, equal equations."""
-    try:
-        return hashlib.sha256(pickle.dumps(disc, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
-    except (pickle.PicklingError, AttributeError, TypeError):
-        return None
 
 
 class HostNewton:
