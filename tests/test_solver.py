@@ -207,7 +207,8 @@ def test_simulators_on_equal_discretisations_share_kernels_that_go_with_them():
         assert int(eq.info.status) == Status.CONVERGED
     built = equations._BY_DISC[first.disc]
     assert equations._BY_DISC[third.disc] is built
-    assert list(built) == [("newton", first.options, None)]  # no contact: no room
+    newton = [key for key in built if key[0] == "newton"]
+    assert newton == [("newton", first.options, None)]  # no contact: no room
     assert Kernels.of(third.equations, third.options, None) is built["newton", first.options, None]
     # another fidelity of the scene: kernels of its own
     other = Equations(discretise(scene_from_config(scene), Resolution(5, 3)))

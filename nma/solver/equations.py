@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..discretise import Discretisation
 from ..mechanics.energy import (
@@ -108,7 +109,8 @@ class Equations:
         self.dirichlet = jnp.asarray(disc.boundary.dirichlet_dofs)
         self.A = jnp.asarray(disc.boundary.actuation_matrix)
         self.f_ext = jnp.asarray(disc.boundary.external_force)
-        self.f_free = self.f_ext[self.free]
+        # numpy's gather: JAX's eager one compiles a program per scene
+        self.f_free = jnp.asarray(np.asarray(disc.boundary.external_force)[disc.boundary.free_dofs])
         # the body force per unit reference area (2,), None: none
         self.body = None if disc.body_force is None else jnp.asarray(disc.body_force)
         self.edofs = jnp.asarray(element_dofs(disc.solid))

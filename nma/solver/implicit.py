@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from .batch import HostBatches
-from .equations import Equations, pullback, tangents_at
+from .equations import Equations, compiled, pullback, tangents_at
 from .host import HostNewton
 from .newton import newton_solve, result
 from .options import NewtonOptions
@@ -34,6 +34,8 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
     NewtonInfo), differentiable in X, d, mat; the WarmStarts it keeps (None where it keeps none:
     warm starts off, or a traced backend, whose batch runs in lockstep from rest)."""
     warm = None
+    # one program where a caller does not trace it (an eager call's ops compile one program each)
+    state = compiled(eqs, ("state",), lambda: jax.jit(partial(_state, eqs)))
     if backend.traceable:
         solve_free = _traced_solve(eqs, backend, opts)
     else:
@@ -42,13 +44,18 @@ def make_equilibrium(eqs: Equations, backend, opts: NewtonOptions, workers: int 
 
     def equilibrium(X, d, mat):
         u_free, info = solve_free(X, d, mat)
-        # a failed solve's state is at the load it reached (a failed solve is a cold one: its load
-        # path scales the prescribed displacements from zero)
-        reached = jnp.where(info.status == Status.CONVERGED, 1.0, info.load)
-        # where nothing was solved (load 0) the state is rest, whatever d holds (a non-finite d)
-        return Equilibrium(eqs.full(u_free, eqs.A @ jnp.where(reached > 0, reached * d, 0.0)), info)
+        return Equilibrium(state(u_free, info, d), info)
 
     return equilibrium, warm
+
+
+def _state(eqs: Equations, u_free, info, d):
+    """Every control point's displacement (n_points, 2) of a solve's free dofs.  A failed solve's
+    state is at the load it reached (a failed solve is a cold one: its load path scales the
+    prescribed displacements from zero); where nothing was solved (load 0) it is rest, whatever d
+    holds (a non-finite d)."""
+    reached = jnp.where(info.status == Status.CONVERGED, 1.0, info.load)
+    return eqs.full(u_free, eqs.A @ jnp.where(reached > 0, reached * d, 0.0))
 
 
 def _traced_solve(eqs, backend, opts):
