@@ -597,3 +597,22 @@ def test_fixed_steps_are_cuts_that_never_cut(block):
     np.testing.assert_array_equal(v, v0)
     assert int(info.status) == Status.INVERTS and int(info.intervals) == 4
     assert int(info.rejected) == int(info0.rejected) == 1
+
+
+def test_dynamics_of_one_scene_and_settings_share_their_step_kernels(beam):
+    """A Dynamics' jitted step pieces are built once per discretisation's content, scheme, density,
+    damping and waveform (nma.solver.equations.compiled): a Dynamics on another Simulator of the
+    same scene takes the first one's; another scheme, damping or waveform gets its own."""
+    sim, _, omega, _ = beam
+    again = Simulator.from_config(BEAM, fidelity={"quad_points": 3}, solver="superlu")
+    assert again.disc is not sim.disc
+    dt = 2 * np.pi / omega[0] / 10
+
+    def kernels(s, scheme="newmark", waveform=no_actuation, **kw):
+        return Dynamics(s, scheme, dt=dt, steps=2, waveform=waveform, workers=1, **kw).kernels
+
+    first = kernels(sim)
+    assert kernels(again) is first
+    assert kernels(sim, "generalised_alpha") is not first
+    assert kernels(sim, alpha=1e-3) is not first
+    assert kernels(sim, waveform=lambda c, t: no_actuation(c, t)) is not first
