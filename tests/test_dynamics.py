@@ -616,3 +616,27 @@ def test_dynamics_of_one_scene_and_settings_share_their_step_kernels(beam):
     assert kernels(sim, "generalised_alpha") is not first
     assert kernels(sim, alpha=1e-3) is not first
     assert kernels(sim, waveform=lambda c, t: no_actuation(c, t)) is not first
+
+
+@pytest.mark.parametrize("adjoint", ["store_all", "checkpointed"])
+def test_each_steps_factor_computed_ahead_gives_the_same_gradient(struck, adjoint):
+    """The sweep factorises each step's matrix beside the pullback of the step after it
+    (nma.dynamics.backward.sweep_back's `ahead`; here with cut intervals, solved again in the
+    backward pass): the same computations in another order, so the gradient of one step at a time
+    to the bit."""
+    sim, X, mat, _, _ = struck
+    sim = Simulator(sim.disc, "superlu", dataclasses.replace(sim.options, max_iters=4))
+    dyn = _strike(struck, 8, 4, sim, bump=4, controller="cuts", max_cuts=3, adjoint=adjoint)
+    c = jnp.full(1, 3.0)
+    u, v, info, trace = dyn.run(X, c, mat)
+    assert int(info.status) == Status.CONVERGED and int(info.cuts) > 0
+    rng = np.random.default_rng(0)
+    bars = rng.normal(size=u.shape), rng.normal(size=v.shape)
+    index = dyn.adjoint.kept(dyn.steps)
+    kept = tuple(x if index is None else x[index] for x in (u, v, trace.a))
+    ahead, in_turn = (
+        dyn.backward(X, c, mat, kept, *trace[1:], int(info.intervals), *bars, ahead=a)
+        for a in (True, False)
+    )
+    for one, other in zip(ahead, in_turn):
+        assert np.any(one != 0) and np.array_equal(one, other)

@@ -12,6 +12,8 @@ the forward pass keeps, and how the sweep gets each step back, is the adjoint's
 
 from __future__ import annotations
 
+import itertools
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import jax
@@ -50,11 +52,27 @@ class Sweep:
         # trajectory that failed in interval m): their cotangents are its own
         m = intervals
         self.zb = [self.u_bar[m:].sum(axis=0), self.v_bar[m:].sum(axis=0), np.zeros(dyn.n)]
+        self._blocks = {}  # dt -> the scheme's inertia and damping blocks B
 
-    def step(self, step) -> None:
+    def factorised(self, step, ws):
+        """ws with the factor of K(u_{n+1}) + B at the step's end: the part of its adjoint that
+        does not wait for the cotangents, so that it can be computed while the step after it is
+        swept (`sweep`)."""
+        dyn, s = self.dyn, self.stepper
+        d1, uf1 = jnp.asarray(step.d), jnp.asarray(step.u_free)
+        kel = dyn.newton.linearised(
+            lambda kk: kk.tangents(s.X, d1, s.mat, uf1), tangents=lambda kel: kel
+        )
+        if step.dt not in self._blocks:  # the same in every step of a length
+            self._blocks[step.dt] = dyn.scheme.blocks(*s.design[1:], step.dt)
+        # K(u_{n+1}) + B differs from the neighbouring step's too much to refine from its factor
+        ws.factorise_for_adjoint(kel._replace(elements=kel.elements + self._blocks[step.dt]))
+        return ws
+
+    def step(self, step, factor) -> None:
+        """The step's adjoint, `factor` the workspace `factorised` left its matrix's factor in."""
         dyn, s, k, zb = self.dyn, self.stepper, self.dyn.kernels, self.zb
-        X, coeffs, mat, design = s.X, s.coeffs, s.mat, s.design
-        M, C = design[1:]
+        mat, design = s.mat, s.design
         u, v, a = (jnp.asarray(x) for x in step.z)
         d1, uf1 = jnp.asarray(step.d), jnp.asarray(step.u_free)
         u1 = k.full(uf1, d1)
@@ -62,12 +80,8 @@ class Sweep:
             u1, u, v, a, step.dt, jnp.asarray(zb[1]), jnp.asarray(zb[2])
         )
         u1_bar = zb[0] + np.asarray(un_b)
-        B = dyn.scheme.blocks(M, C, step.dt)
-        kel = dyn.newton.linearised(
-            lambda kk: kk.tangents(X, d1, mat, uf1), tangents=lambda kel: kel
-        )
-        # K(u_{n+1}) + B differs from the neighbouring step's too much to refine from its factor
-        lam = s.ws.adjoint(kel._replace(elements=kel.elements + B), u1_bar[dyn.free], refine=False)
+        rhs = u1_bar[dyn.free]
+        lam = factor.solve(rhs) if np.linalg.norm(rhs) else np.zeros_like(rhs)
         self.design_bar, mb, ub, vb, ab, uDb = k.pullback(
             design,
             mat,
@@ -81,7 +95,7 @@ class Sweep:
             self.design_bar,
         )
         d_bar = dyn.A.T @ (np.asarray(uDb) + u1_bar[dyn.dirichlet])
-        self.c_bar += np.asarray(k.actuation_vjp(coeffs, step.t + step.dt, jnp.asarray(d_bar)))
+        self.c_bar += np.asarray(k.actuation_vjp(s.coeffs, step.t + step.dt, jnp.asarray(d_bar)))
         self.mat_bar += np.asarray(mb)
         self.zb = [
             np.asarray(u_b) + np.asarray(ub),
@@ -106,6 +120,35 @@ class Sweep:
         X_b, mat_b = k.design_vjp(s.X, s.mat, self.design_bar)
         X_b = np.asarray(X_b) if X_0 is None else np.asarray(X_b) + np.asarray(X_0)
         return X_b, self.c_bar, self.mat_bar + np.asarray(mat_b)
+
+
+def sweep_back(sweep: Sweep, steps, backend, ahead: bool) -> None:
+    """Every step of `steps` (the last first) through `sweep`.  With `ahead`, each step's factor
+    is computed in a second thread while the step after it is swept: a step's tangent and
+    factorisation do not wait for its cotangents, so they run beside the next one's pullback on
+    the cores that one sample leaves idle (the same computations: the same gradient)."""
+    spaces = [backend.workspace(), backend.workspace()]  # the factor in use, the one coming
+    try:
+        if not ahead:
+            for step in steps:
+                sweep.step(step, sweep.factorised(step, spaces[0]))
+            return
+        with ThreadPoolExecutor(1, thread_name_prefix="nma-adjoint") as pool:
+            steps = iter(steps)
+            current = next(steps, None)
+            coming = None if current is None else pool.submit(sweep.factorised, current, spaces[0])
+            for n in itertools.count(1):
+                if current is None:
+                    break
+                following = next(steps, None)  # may solve steps again (checkpointed)
+                factor = coming.result()
+                if following is not None:
+                    coming = pool.submit(sweep.factorised, following, spaces[n % 2])
+                sweep.step(current, factor)
+                current = following
+    finally:
+        for ws in spaces:
+            backend.release(ws)
 
 
 def differentiable(dyn):

@@ -29,7 +29,7 @@ from ..solver.batch import split_samples, stack_samples
 from ..solver.host import HostNewton
 from ..solver.status import Status
 from .adjoints import Adjoint
-from .backward import Sweep, TrajectoryInfo, differentiable
+from .backward import Sweep, TrajectoryInfo, differentiable, sweep_back
 from .checks import check_dynamics, check_run, checked_function
 from .controllers import Controller
 from .initial import Initial
@@ -243,10 +243,13 @@ class Dynamics:
         return u, v, info, Trace(a, counts, control)
 
     # -- one sample, backward
-    def backward(self, X, coeffs, mat, kept, counts, control, intervals: int, u_bar, v_bar):
+    def backward(
+        self, X, coeffs, mat, kept, counts, control, intervals: int, u_bar, v_bar, ahead=True
+    ):
         """(X_bar, coeffs_bar, mat_bar) for cotangents u_bar, v_bar of the states at k dt, from what
         the adjoint kept: `kept` = (u, v, a) at its kept output times, each interval's step count
-        and controller state, and the intervals the trajectory completed."""
+        and controller state, and the intervals the trajectory completed.  `ahead`: each step's
+        factor computed beside the step after it (nma.dynamics.backward.sweep_back)."""
         ws = self.sim.backend.workspace()
         try:
             stepper = Stepper(self, X, coeffs, mat, ws)
@@ -257,10 +260,8 @@ class Dynamics:
                 for i, k in enumerate(index)
             }
             sweep = Sweep(self, stepper, u_bar, v_bar, int(intervals), states.get(0))
-            for step in self.adjoint.steps_back(
-                self, stepper, states, counts, control, int(intervals)
-            ):
-                sweep.step(step)
+            steps = self.adjoint.steps_back(self, stepper, states, counts, control, int(intervals))
+            sweep_back(sweep, steps, self.sim.backend, ahead)
             return sweep.result()
         finally:
             self.sim.backend.release(ws)
@@ -286,9 +287,13 @@ class Dynamics:
         args = (X, coeffs, mat, u, v, a, counts, control, intervals, u_bar, v_bar)
         Xs, cs, ms, us, vs, as_, ns, cts, ms_, ub, vb = (split_samples(x, lead) for x in args)
 
+        # a batch's samples on the pool hold the cores already: no factor computed ahead
+        ahead = not (self._pool and len(cs) > 1)
+
         def one(i):
+            kept = (us[i], vs[i], as_[i])
             return self.backward(
-                Xs[i], cs[i], ms[i], (us[i], vs[i], as_[i]), ns[i], cts[i], ms_[i], ub[i], vb[i]
+                Xs[i], cs[i], ms[i], kept, ns[i], cts[i], ms_[i], ub[i], vb[i], ahead
             )
 
         return stack_samples(self._map(one, range(len(cs))), lead)

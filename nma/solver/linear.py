@@ -94,9 +94,18 @@ class Workspace:
                     return x
                 if k < REFINE_STEPS:
                     x = x + self.solve(r)
+        self._factorise_for_adjoint(A)
+        return self.solve(rhs)
+
+    def factorise_for_adjoint(self, kel) -> None:
+        """Factorise K from kel for adjoint solves to come (`solve`): where K is known before the
+        right-hand side (a time step's, in the sweep through time)."""
+        with self.backend.clock.time("adjoint_solve"):
+            self._factorise_for_adjoint(self.backend.pattern.matrix(kel))
+
+    def _factorise_for_adjoint(self, A) -> None:
         self.factor = self.backend.factorise(A, self.factor)
         self.backend.count("adjoint_refactorisations")
-        return self.solve(rhs)
 
 
 class HostBackend:
@@ -287,9 +296,12 @@ class DenseWorkspace(Workspace):
         rhs = np.asarray(rhs, dtype=np.float64)
         if np.linalg.norm(rhs) == 0.0:
             return np.zeros_like(rhs)
+        self.factorise_for_adjoint(kel)
+        return self.solve(rhs)
+
+    def factorise_for_adjoint(self, kel) -> None:
         self.factorise(kel)
         self.backend.count("adjoint_refactorisations")
-        return self.solve(rhs)
 
 
 @LINEAR_SOLVERS.register("dense")
