@@ -94,16 +94,12 @@ class Workspace:
                     return x
                 if k < REFINE_STEPS:
                     x = x + self.solve(r)
-        self._factorise_for_adjoint(A)
+        self.factorise_for_adjoint(kel, A)
         return self.solve(rhs)
 
-    def factorise_for_adjoint(self, kel) -> None:
-        """Factorise K from kel for adjoint solves to come (`solve`): where K is known before the
-        right-hand side (a time step's, in the sweep through time)."""
-        with self.backend.clock.time("adjoint_solve"):
-            self._factorise_for_adjoint(self.backend.pattern.matrix(kel))
-
-    def _factorise_for_adjoint(self, A) -> None:
+    def factorise_for_adjoint(self, kel, A=None) -> None:
+        """Factorise K (from kel, or A, its assembly) for the adjoint solves to come (`solve`)."""
+        A = self.backend.pattern.matrix(kel) if A is None else A
         self.factor = self.backend.factorise(A, self.factor)
         self.backend.count("adjoint_refactorisations")
 
@@ -118,8 +114,7 @@ class HostBackend:
     def __init__(self, disc: Discretisation):
         self.pattern = sparse_pattern(disc, upper=self.upper)
         self._lock = threading.Lock()
-        # newton_solves and newton_iterations count every solve, a warm start's that was redone cold
-        # too
+        # newton_solves and newton_iterations count every solve, a warm start redone cold too
         self.stats = {
             "factorisations": 0,
             "adjoint_refactorisations": 0,
@@ -299,7 +294,7 @@ class DenseWorkspace(Workspace):
         self.factorise_for_adjoint(kel)
         return self.solve(rhs)
 
-    def factorise_for_adjoint(self, kel) -> None:
+    def factorise_for_adjoint(self, kel, A=None) -> None:
         self.factorise(kel)
         self.backend.count("adjoint_refactorisations")
 
