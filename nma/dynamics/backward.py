@@ -57,7 +57,7 @@ class Sweep:
     def factorised(self, step, ws):
         """ws with the factor of K(u_{n+1}) + B at the step's end: the part of its adjoint that
         does not wait for the cotangents, so that it can be computed while the step after it is
-        swept (`sweep`)."""
+        swept (`sweep_back`)."""
         dyn, s = self.dyn, self.stepper
         d1, uf1 = jnp.asarray(step.d), jnp.asarray(step.u_free)
         kel = dyn.newton.linearised(
@@ -134,16 +134,14 @@ def sweep_back(sweep: Sweep, steps, backend, ahead: bool) -> None:
                 sweep.step(step, sweep.factorised(step, spaces[0]))
             return
         with ThreadPoolExecutor(1, thread_name_prefix="nma-adjoint") as pool:
-            steps = iter(steps)
+            steps, ring = iter(steps), itertools.cycle(spaces)
             current = next(steps, None)
-            coming = None if current is None else pool.submit(sweep.factorised, current, spaces[0])
-            for n in itertools.count(1):
-                if current is None:
-                    break
+            coming = None if current is None else pool.submit(sweep.factorised, current, next(ring))
+            while current is not None:
                 following = next(steps, None)  # may solve steps again (checkpointed)
                 factor = coming.result()
                 if following is not None:
-                    coming = pool.submit(sweep.factorised, following, spaces[n % 2])
+                    coming = pool.submit(sweep.factorised, following, next(ring))
                 sweep.step(current, factor)
                 current = following
     finally:
