@@ -62,10 +62,17 @@ def before_jax_starts() -> None:
 
 
 def configure_jax() -> None:
+    """What every command sets before any JAX operation (the backend reads some of it once, when
+    it starts): float64, the persistent cache, programs run on their caller's thread."""
     import jax
 
     before_jax_starts()
     jax.config.update("jax_enable_x64", True)
+    # Each program runs on the thread that calls it.  With the CPU client's async dispatch, a
+    # program whose inputs are still being computed runs later on one of XLA's threads, and its
+    # host callback (the host Newton, a periodic response) calls compiled kernels there while
+    # the caller goes on with its own: the two can wait on each other for ever.
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
     path = cache_dir()
     if path is not None:
         jax.config.update("jax_compilation_cache_dir", str(path))
