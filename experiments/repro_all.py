@@ -3,7 +3,7 @@ that run side by side.
 
     # make repro-all: two lanes on a machine with 2+ cores
     python experiments/repro_all.py
-    # one after the other, as the README's times were taken
+    # one after the other, as each time in results/ was taken
     python experiments/repro_all.py --lanes 1
 
 One reproduction alone keeps a 2-core machine about 1.5 cores busy (the double rotation: 150% CPU
@@ -13,8 +13,8 @@ setup, evaluation and figures are serial.  Two lanes fill that, each run with on
 Newton threads (nma.solver.batch), so each reproduction writes what it writes alone; the lanes
 change only when it finishes.  (Pinning each lane to one core would deadlock: a training step's
 compiled program calls back into the host Newton, whose kernels need a second thread of XLA's CPU
-pool.) Each lane runs its experiments in order; the lanes are balanced by the experiments' measured
-times (README).  Writes outputs/repro/seconds_all.json: each experiment's wall time, and the whole.
+pool.) Each lane runs its experiments in order, the lanes balanced by the experiments' measured
+times (LANES).  Writes outputs/repro/seconds_all.json: each experiment's wall time, and the whole.
 """
 
 from __future__ import annotations
@@ -28,25 +28,34 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# longest first; with two lanes the single rotation (31.7 min alone, results/) runs beside the
-# shape matching and its lane's others, the lanes about 68 min each at results/' times
+# longest first; two lanes balanced by each experiment's wall time in a two-lane run on a 2-core
+# AMD EPYC (solver.workers=1, minutes): the dynamic follow (35.8) with the shape matching (24.6),
+# the energy focus (8.0) and the translation (7.1), 75.5 in all; the single (26.8) and double
+# (16.5) rotations with the amortised (17.4) and single (3.9) periodic designs and digital MNIST
+# (11.6), 76.2
 LANES = {
     1: [
         [
-            "rotation_single",
-            "rotation_double",
-            "shape_matching",
-            "digital_mnist",
-            "translation",
             "dynamic_follow",
-            "dynamic_energy",
+            "rotation_single",
+            "shape_matching",
             "periodic_poisson_amortised",
+            "rotation_double",
+            "digital_mnist",
+            "dynamic_energy",
+            "translation",
             "periodic_poisson",
         ]
     ],
     2: [
-        ["rotation_single", "rotation_double", "periodic_poisson_amortised", "dynamic_energy"],
-        ["shape_matching", "digital_mnist", "translation", "dynamic_follow", "periodic_poisson"],
+        [
+            "rotation_single",
+            "periodic_poisson_amortised",
+            "rotation_double",
+            "digital_mnist",
+            "periodic_poisson",
+        ],
+        ["dynamic_follow", "shape_matching", "dynamic_energy", "translation"],
     ],
 }
 
