@@ -12,9 +12,9 @@ import numpy as np
 def test_a_host_callback_behind_a_pending_program_runs_on_the_callers_thread():
     # With the CPU client's async dispatch, a callback program whose input is still being
     # computed runs later on one of XLA's threads; when that callback calls compiled kernels
-    # while the caller goes on with its own, the two can wait on each other for ever (a fast
-    # suite hung so, in the periodic response's gradient test).  configure_jax runs each program
-    # on its caller's thread, so the callback has run when the call returns.
+    # (as every host solve does) while the caller goes on with its own, the two can wait on each
+    # other for ever.  configure_jax runs each program on its caller's thread, so the callback
+    # has run when the call returns.
     ran_on = []
 
     def host(x):
