@@ -16,12 +16,17 @@ def _fast_suite_only() -> bool:
 
 # The fast suite compiles some thousand distinct programs and runs most a few times, so XLA's
 # compile time outweighs its code's speed there: the CPU backend's legacy emitters and no LLVM
-# optimisation compile in about half the time and run at most 2x slower.  Results agree with the
-# optimised programs' to round-off (IEEE arithmetic either way), far below the fast tests'
-# tolerances.  The slow suite (long runs, canaries pinned from the commands' own programs) compiles
-# as the commands do, and so does NMA_TEST_XLA_FLAGS=off.  The worker processes (which inherit the
-# controller's choice) and the commands the tests start take the flags from the environment.
-TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
+# optimisation compile in about half the time and run at most 2x slower, and each program's code
+# generated as one LLVM module (not split for parallel compilation) costs a tenth less CPU time
+# again.  Results agree with the optimised programs' to round-off (IEEE arithmetic either way), far
+# below the fast tests' tolerances.  The slow suite (long runs, canaries pinned from the commands'
+# own programs) compiles as the commands do, and so does NMA_TEST_XLA_FLAGS=off.  The worker
+# processes (which inherit the controller's choice) and the commands the tests start take the flags
+# from the environment.
+TEST_XLA_FLAGS = (
+    "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0 "
+    "--xla_cpu_parallel_codegen_split_count=1"
+)
 if (
     os.environ.get("NMA_TEST_XLA_FLAGS", "on") != "off"
     and "PYTEST_XDIST_WORKER" not in os.environ
