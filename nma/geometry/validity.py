@@ -79,7 +79,7 @@ def _element_centres(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     m, g = mesh.fidelity.ctrl_per_patch, mesh.fidelity.grading
     B = basis_matrix(np.minimum(span_points(m, [0.5], g).ravel(), 1.0 - 1e-12), m, grading=g)
     nets = points[mesh.patch_points].reshape(mesh.n_patches, m, m, 2)
-    return np.einsum("ai,bj,pijd->pabd", B, B, nets).reshape(-1, 2)
+    return np.einsum("ai,bj,pijd->pabd", B, B, nets, optimize=True).reshape(-1, 2)
 
 
 def _jacobian_dets(mesh: Mesh, points: np.ndarray) -> np.ndarray:
@@ -87,8 +87,9 @@ def _jacobian_dets(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     m = mesh.fidelity.ctrl_per_patch
     B, dB = _element_bases(m, mesh.fidelity.grading)
     nets = points[..., mesh.patch_points, :].reshape(*points.shape[:-2], mesh.n_patches, m, m, 2)
-    dxi = np.einsum("ai,bj,...pijd->...pabd", dB, B, nets)
-    deta = np.einsum("ai,bj,...pijd->...pabd", B, dB, nets)
+    # contracted one basis at a time (optimize): m times fewer operations than all at once
+    dxi = np.einsum("ai,bj,...pijd->...pabd", dB, B, nets, optimize=True)
+    deta = np.einsum("ai,bj,...pijd->...pabd", B, dB, nets, optimize=True)
     det = dxi[..., 0] * deta[..., 1] - dxi[..., 1] * deta[..., 0]  # (..., P, 4S, 4S)
     S = m - 2
     return det.reshape(*det.shape[:-2], S, 4, S, 4).swapaxes(-3, -2)
