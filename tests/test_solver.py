@@ -303,6 +303,46 @@ def test_trust_region_corrector_reaches_the_same_equilibrium_in_fewer_iterations
     np.testing.assert_allclose(X + sols["trust region"].u, X + sols["line search"].u, atol=1e-8)
 
 
+def test_a_step_is_linearised_at_its_full_length_and_again_only_where_it_ends_short():
+    """A step that speculates linearises at its full length before the search, which takes the
+    energy from there (nma.solver.newton.advance).  Where the step ends there (`landed`: every
+    predictor and corrector of this solve), that is the next linearisation, to the bit; a step four
+    times Newton's, which the line search shortens short of convergence, does not land.  Speculating
+    or not, a step reaches the same state, to the bit."""
+    from functools import partial
+
+    from nma.solver import newton
+    from nma.solver.host import Kernels
+
+    sim = Simulator(discretise(scene_from_config(SMALL)), "superlu")
+    eqs, opts, ws = sim.equations, sim.options, sim.backend.workspace()
+    kernels = Kernels.of(eqs, opts, None)
+    fresh = jax.jit(partial(newton.linearise, eqs, opts))
+    X, d = sim.reference_points(sim.init_params()), jnp.array([1.0, -0.5])
+    p, s, lin = kernels.start(X, d, material(0.07, 0.3))
+    landed = []  # (predictor, step scaled by, landed, went its full length)
+    yes, no = jnp.asarray(True), jnp.asarray(False)
+    while int(lin.state.status) == Status.RUNNING:
+        ws.factorise(lin.kel, float(lin.state.shift))
+        du = jnp.asarray(ws.solve(lin.rhs))
+        predictor = bool(lin.state.predictor)
+        for scale in (1.0,) if predictor else (4.0, 1.0):
+            plain, _, plain_landed, plain_full = kernels.step(p, lin, scale * du, no)
+            s, lin1, hit, full = kernels.step(p, lin, scale * du, yes)
+            landed.append((predictor, scale, bool(hit), bool(full)))
+            assert not bool(plain_landed) and bool(plain_full) == bool(full)
+            for a, b in zip(jax.tree.leaves(s), jax.tree.leaves(plain)):
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+            if hit:
+                for a, b in zip(jax.tree.leaves(lin1), jax.tree.leaves(fresh(p, s))):
+                    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        lin = lin1
+    assert int(lin.state.status) == Status.CONVERGED
+    assert all(hit and full for _, scale, hit, full in landed if scale == 1.0)
+    assert any(predictor for predictor, *_ in landed)
+    assert not all(hit for _, scale, hit, _ in landed if scale == 4.0)
+
+
 def test_a_third_corrector_registered_by_name_needs_no_edit_of_the_loop(monkeypatch):
     """A corrector is an object with search / cut / next_shift (nma.solver.correctors), chosen by
     name from nma.registry.CORRECTORS.  A trivial third one, the bounded Newton step always taken,

@@ -3,7 +3,9 @@
 failed) and `next_shift` (the diagonal shift of the next step's matrix, K + shift I).  The loop
 (nma.solver.newton.advance) calls them by name, solver.corrector; a new one registers in
 nma.registry.CORRECTORS and needs no edit of the loop.  In a time step (nma.dynamics) `search` is
-also given `noise`, the energy's round-off, to widen its acceptance test by.
+also given `noise`, the energy's round-off, to widen its acceptance test by.  A `search` that takes
+`first`, (known, E), is given the energy E at the full step a0 along `step`, valid where `known`
+(the loop linearised there: nma.solver.newton.advance), and need not evaluate it again.
 
 line_search: the Newton step, shortened as a whole until the energy falls enough (backtracking
 Armijo), a non-descent direction retried with a larger shift.  trust_region: the step of K + shift
@@ -49,12 +51,14 @@ class Trial(NamedTuple):
 class LineSearch:
     """The Newton step, shortened as a whole until the energy falls enough."""
 
-    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None):
+    def search(
+        self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None, first=None
+    ):
         """How far along `step` (slope < 0, at most a0) and whether to take it: (a, ok, agreement,
         curvature). `noise`: the energy's round-off where it is known to exceed 1e-12 |E0| (a time
-        step's)."""
+        step's); `first`: (known, the energy at a0), where the caller may have it."""
         curvature = jnp.zeros_like(slope)
-        a, ok = _line_search(energy, opts, u, step, E0, slope, a0, noise)
+        a, ok = _line_search(energy, opts, u, step, E0, slope, a0, noise, first)
         return a, ok, jnp.ones_like(slope), curvature
 
     def cut(self, s: State, opts: NewtonOptions, t: Trial):
@@ -69,9 +73,11 @@ class LineSearch:
 class TrustRegion:
     """The step of K + shift I, taken where the energy's quadratic model predicted its fall."""
 
-    def search(self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None):
+    def search(
+        self, eqs, opts: NewtonOptions, kel, energy, u, step, E0, slope, a0, noise=None, first=None
+    ):
         curvature = eqs.curvature(kel, step)
-        a, ok, agreement = _trust_region(energy, u, step, E0, slope, curvature, a0, noise)
+        a, ok, agreement = _trust_region(energy, u, step, E0, slope, curvature, a0, noise, first)
         return a, ok, agreement, curvature
 
     def cut(self, s: State, opts: NewtonOptions, t: Trial):
@@ -97,9 +103,10 @@ def _slack(E0, noise):
     return slack if noise is None else slack + noise
 
 
-def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=None):
+def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=None, first=None):
     """Backtracking (halving) from alpha0 until Armijo holds (to round-off of the energy): the step
-    and whether it was found."""
+    and whether it was found.  `first`: (known, the energy at alpha0), where the caller may have
+    it."""
     slack = _slack(E0, noise)
 
     def ok(a, Ea):
@@ -114,18 +121,25 @@ def _line_search(energy, opts: NewtonOptions, u, du, E0, slope, alpha0, noise=No
         a = 0.5 * a
         return a, energy(u + a * du), k + 1
 
-    a, Ea, _ = jax.lax.while_loop(cond, body, (2.0 * alpha0, jnp.inf, 0))
+    start = (2.0 * alpha0, jnp.inf, 0)
+    if first is not None:  # the loop's state after its first pass (at alpha0) where that is known
+        start = tuple(jnp.where(first[0], a, b) for a, b in zip((alpha0, first[1], 1), start))
+    a, Ea, _ = jax.lax.while_loop(cond, body, start)
     return a, ok(a, Ea) & (alpha0 > 0)
 
 
-def _trust_region(energy, u, step, E0, slope, curvature, a, noise=None):
+def _trust_region(energy, u, step, E0, slope, curvature, a, noise=None, first=None):
     """The trust-region test of a corrector step a * step (its slope and curvature along `step`):
     the energy's actual fall against the fall its quadratic model predicts.  Returns (a, accepted,
     ratio). Near equilibrium both are round-off, and a step that does not raise the energy beyond it
-    is taken."""
+    is taken.  `first`: (known, the energy at a), where the caller may have it."""
     slack = _slack(E0, noise)
     predicted = -(a * slope + 0.5 * a * a * curvature)
-    Ea = energy(u + a * step)
+    Ea = (
+        energy(u + a * step)
+        if first is None
+        else jax.lax.cond(first[0], lambda: first[1], lambda: energy(u + a * step))
+    )
     ratio = (E0 - Ea) / jnp.maximum(predicted, slack)
     roundoff = jnp.abs(predicted) <= slack
     ok = jnp.isfinite(Ea) & (a > 0) & ((ratio >= TRUST_ACCEPT) | (roundoff & (Ea <= E0 + slack)))

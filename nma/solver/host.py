@@ -62,7 +62,7 @@ class AtRest:
 class Kernels:
     """The jitted halves of Newton's iterations and the adjoint's tangent, for Equations with a
     given number of contact slots: one dispatch and one wait per iteration, each kernel ending with
-    the next linearisation."""
+    the next linearisation (a step that fell short of where it linearised: `relinearise` too)."""
 
     @classmethod
     def of(cls, eqs: Equations, opts: NewtonOptions, room: int | None) -> "Kernels":
@@ -79,7 +79,8 @@ class Kernels:
         self.start_warm = jax.jit(partial(_start_warm, eqs, opts))
         self.start_at_rest = jax.jit(partial(_start_at_rest, eqs, opts))
         self.start_step = jax.jit(partial(_start_step, eqs, opts))
-        self.step = jax.jit(partial(_step, eqs, opts))
+        self.step = jax.jit(partial(advance, eqs, opts))
+        self.relinearise = jax.jit(partial(linearise, eqs, opts))
         self.leave = jax.jit(partial(leave_saddle, eqs, opts))
         self.tangents = jax.jit(partial(tangents_at, eqs))
         self.hold = jax.jit(partial(hold, opts))
@@ -196,6 +197,7 @@ class HostNewton:
         # dispatch and wait (XLA runs async)
         kernels = partial(self.backend.clock.time, "newton_kernels")
         checked = set()  # converged load steps whose stability was checked (each once)
+        speculate = True  # whether the next step linearises at its full length first
         while True:
             with kernels():
                 status, next_status, shift, predictor, steps, it = jax.device_get(
@@ -251,8 +253,10 @@ class HostNewton:
                     ws.factorise(lin.kel, float(shift))
             du = factor.solve(lin.rhs)
             with kernels():
-                s, lin = self.linearised(
-                    lambda k, lin=lin: k.step(p, lin, du), lin.kel.which.shape[-1]
+                s, lin, speculate = self.linearised(
+                    lambda k, lin=lin: _advanced(k, p, lin, du, speculate),
+                    lin.kel.which.shape[-1],
+                    lambda out: out[1].kel,
                 )
         self.backend.count("newton_solves")
         self.backend.count("newton_iterations", int(s.it))
@@ -291,6 +295,9 @@ def _start_step(eqs, opts, p, lin, d, inertia):
     return p, s, linearise(eqs, opts, p, s, at)
 
 
-def _step(eqs, opts, p, lin, du):
-    s = advance(eqs, opts, p, lin, du)
-    return s, linearise(eqs, opts, p, s)
+def _advanced(kernels: Kernels, p, lin, du, speculate: bool):
+    """The step du, the linearisation at its end (the step kernel's where the step landed where it
+    linearised, else afresh) and whether the next step speculates (nma.solver.newton.advance)."""
+    s, lin, landed, full = kernels.step(p, lin, du, jnp.asarray(speculate))
+    landed, full = jax.device_get((landed, full))
+    return (s, lin if landed else kernels.relinearise(p, s), bool(full))

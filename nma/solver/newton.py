@@ -44,6 +44,7 @@ scales and tolerance it converges against, nma.solver.scales's.
 
 from __future__ import annotations
 
+import inspect
 from typing import NamedTuple
 
 import jax
@@ -137,9 +138,22 @@ def hold(opts: NewtonOptions, lin: Linearised) -> State:
     return _tick(lin.state._replace(predictor=jnp.asarray(False)), opts)
 
 
-def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du) -> State:
+def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du, speculate=True):
     """Second half of an iteration: take the step du (the solution of K_ff du = rhs), a predictor's
-    as far as the bounds allow, a corrector's as solver.corrector finds (nma.solver.correctors)."""
+    as far as the bounds allow, a corrector's as solver.corrector finds (nma.solver.correctors).
+    With `speculate`, first linearise where the step is bound to end, at its full length: the search
+    takes the energy there from that linearisation.  Returns (State, Linearised, landed, full):
+    `full` where the step went its full length; `landed` where it did and speculated, else the
+    Linearised is not the State's, and the caller linearises it afresh (`linearise`).  Steps that
+    fall short come in runs (a line search cutting step after step), so a caller speculates only
+    after a step that went its full length."""
+    s, at, full = _move(eqs, opts, p, lin, du, speculate)
+    return s, linearise(eqs, opts, p, s, at), speculate & full, full
+
+
+def _move(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du, speculate):
+    """advance's State, the linearisation at the full step (where `speculate`; None where it is
+    False itself) and whether the State is there."""
     s, E0, g = lin.state, lin.energy, lin.g
     predictor, dlam = s.predictor, s.dlam
     corrector = CORRECTORS.get(opts.corrector)()
@@ -161,6 +175,33 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
     # the step stopped where the material would invert between Gauss points (the element bound's
     # doing)
     inverting = s.inverting | ((checks < jnp.minimum(gauss, walls)) & (a0 < 1.0))
+
+    # the state the full step reaches (a predictor's load moved along), and its tangent's kind
+    trial_u, trial_lam = s.u + a0 * step, jnp.where(predictor, s.lam + a0 * dlam, s.lam)
+    trial_normal = _contact_normal(
+        eqs,
+        opts,
+        s._replace(
+            it=s.it + 1,
+            predictor=jnp.asarray(False),
+            step_it=jnp.where(predictor, 0, s.step_it + 1),
+        ),
+    )
+
+    def trial_linearised():
+        return eqs.linearise(
+            p.quad,
+            trial_u,
+            p.boundary(trial_lam),
+            p.load(trial_lam),
+            p.mat,
+            trial_normal,
+            p.inertia,
+        )
+
+    # without speculating, `at` is the current linearisation's (of its shapes; not used)
+    current = lambda: (lin.energy, lin.g, lin.kel)
+    at = None if speculate is False else jax.lax.cond(speculate, trial_linearised, current)
 
     def predict(_):
         return (
@@ -189,6 +230,11 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
             -jnp.abs(slope),
             a0,
             *(() if noise is None else (noise,)),
+            **(
+                {"first": (speculate, at[0])}
+                if at is not None and "first" in inspect.signature(corrector.search).parameters
+                else {}
+            ),
         )
         return a, (descent | flipped) & ok, descent, agreement, curvature
 
@@ -219,7 +265,7 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
         else Status.INCREMENT_TOO_SMALL
     )
     status = jnp.where(cut & (dlam_cut < opts.min_increment), why, s.status)
-    return _tick(
+    new = _tick(
         s._replace(
             u=u_new,
             lam=lam_new,
@@ -235,6 +281,13 @@ def advance(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, du
         ),
         opts,
     )
+    # the full step's linearisation is the new state's where its inputs are the same
+    full = (
+        jnp.all(new.u == trial_u)
+        & (new.lam == trial_lam)
+        & (jnp.asarray(_contact_normal(eqs, opts, new)) == jnp.asarray(trial_normal))
+    )
+    return new, at, full
 
 
 def leave_saddle(eqs: Equations, opts: NewtonOptions, p: Problem, lin: Linearised, v, curvature):
@@ -292,14 +345,16 @@ def newton_solve(eqs: Equations, backend, opts: NewtonOptions, X, d, mat):
     """Solve for the free displacements at full load as one traced loop (a traceable linear backend,
     e.g. dense on a GPU). Returns (u_free, NewtonInfo). Host backends drive the same two halves of
     an iteration from Python instead (HostNewton), so that no compiled program holds a host
-    callback."""
+    callback.  It does not speculate (advance): under vmap a batch runs both sides of a branch."""
     p, init = setup(eqs, opts, X, d, mat)
 
     def body(s: State) -> State:
         lin = linearise(eqs, opts, p, s)
         return jax.lax.cond(
             lin.state.status == Status.RUNNING,
-            lambda _: advance(eqs, opts, p, lin, backend.solve(lin.kel, lin.rhs, lin.state.shift)),
+            lambda _: _move(
+                eqs, opts, p, lin, backend.solve(lin.kel, lin.rhs, lin.state.shift), False
+            )[0],
             lambda _: hold(opts, lin),
             None,
         )
